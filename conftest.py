@@ -1,0 +1,125 @@
+"""Shared pytest fixtures for every package's tests and the repo-level system tests.
+
+ROS isolation: each pytest session gets its own ROS_DOMAIN_ID and localhost-only
+discovery, set before any rclpy context exists, and inherited by every process a
+test starts. Processes started through `ros_processes` are killed (their whole
+process group) when the test ends, whatever its outcome.
+"""
+
+import os
+import random
+import select
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+# Chosen at import, before any test can initialise rclpy. Domain ids 1..101 keep
+# the default port mapping valid; the pid spreads concurrent sessions apart.
+_DOMAIN_ID = 1 + (os.getpid() + random.SystemRandom().randrange(101)) % 101
+os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN_ID)
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy, conflicts with the above
+os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
+os.environ["PYTHONUNBUFFERED"] = "1"
+
+
+class ProcessGroup:
+    """Starts child processes in their own sessions and guarantees their cleanup."""
+
+    def __init__(self):
+        self.processes = []
+
+    def start(self, argv, **kwargs):
+        proc = subprocess.Popen(
+            argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            start_new_session=True,
+            env=kwargs.pop("env", os.environ.copy()),
+            **kwargs,
+        )
+        self.processes.append(proc)
+        return proc
+
+    def start_python(self, script, *args, **kwargs):
+        return self.start([sys.executable, str(script), *map(str, args)], **kwargs)
+
+    def stop_all(self, timeout=5.0):
+        for proc in self.processes:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for proc in self.processes:
+            remaining = max(0.1, deadline - time.monotonic())
+            try:
+                proc.wait(timeout=remaining)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait(timeout=5)
+        for proc in self.processes:
+            # The group may hold grandchildren; make sure none outlives the test.
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+    def wait_for_line(self, proc, text, timeout):
+        """Read `proc`'s output until a line contains `text`; returns the lines read."""
+        lines = []
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            ready, _, _ = select.select([proc.stdout], [], [], 0.1)
+            if ready:
+                line = proc.stdout.readline()
+                if not line and proc.poll() is not None:
+                    break
+                lines.append(line)
+                if text in line:
+                    return lines
+            elif proc.poll() is not None:
+                break
+        raise AssertionError(
+            f"{proc.args!r} did not print {text!r} within {timeout} s "
+            f"(exit code {proc.poll()}); output so far:\n{''.join(lines)}")
+
+    def output(self, proc):
+        """All output of a finished (or stopped) process."""
+        if proc.stdout is None:
+            return ""
+        return proc.stdout.read()
+
+
+@pytest.fixture
+def ros_processes():
+    group = ProcessGroup()
+    yield group
+    group.stop_all()
+
+
+@pytest.fixture
+def rclpy_context():
+    """An rclpy context of this test only, on the session's isolated domain."""
+    rclpy = pytest.importorskip("rclpy")
+    context = rclpy.context.Context()
+    rclpy.init(context=context)
+    yield context
+    rclpy.try_shutdown(context=context)
+
+
+def spin_until(executor, predicate, timeout):
+    """Spin `executor` until `predicate()` is true or `timeout` seconds pass."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        executor.spin_once(timeout_sec=0.05)
+    return predicate()
+
+
+@pytest.fixture
+def spin():
+    return spin_until

@@ -21,6 +21,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'belief = abp_belief.belief_node:main',
+            'models = abp_belief.models_cli:main',
+            'bench_filter = abp_belief.bench_filter:main',
         ],
     },
 )

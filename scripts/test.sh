@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # The whole test suite: bootstrap (idempotent), lint, then every package's
-# test/ and the repo-level system tests. Exits non-zero on any failure.
+# test/ folder and the repo-level system tests, one pytest run per folder.
+# Exits non-zero on any failure.
 #   scripts/test.sh                 # everything
-#   scripts/test.sh -k belief       # extra arguments go to pytest
+#   scripts/test.sh -k belief       # extra arguments go to every pytest run
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$REPO"
@@ -14,5 +15,31 @@ set +u; source scripts/env.sh; set -u
 echo "[test] ruff check"
 ruff check .
 
-echo "[test] pytest"
-python -m pytest "$@"
+results="$REPO/build/test-results"
+rm -rf "$results" && mkdir -p "$results"
+status=0
+for dir in tests abp_*/test; do
+  [ -d "$dir" ] || continue
+  name="${dir%%/*}"
+  echo "[test] pytest $dir"
+  python -m pytest "$dir" --junitxml="$results/$name.xml" "$@" || {
+    rc=$?
+    # 5 = no tests collected (e.g. filtered out by -k): not a failure of the suite.
+    [ "$rc" = 5 ] || status=1
+  }
+done
+
+python - "$results" <<'PY'
+import pathlib, sys
+import xml.etree.ElementTree as ET
+totals = dict(tests=0, failures=0, errors=0, skipped=0)
+for path in sorted(pathlib.Path(sys.argv[1]).glob("*.xml")):
+    for suite in ET.parse(path).getroot().iter("testsuite"):
+        for key in totals:
+            totals[key] += int(suite.get(key, 0))
+failed = totals["failures"] + totals["errors"]
+passed = totals["tests"] - failed - totals["skipped"]
+print(f"[test] all folders: {passed} passed, {failed} failed, {totals['skipped']} skipped")
+print(f"{passed} passed, {failed} failed")
+PY
+exit "$status"

@@ -1,0 +1,243 @@
+"""ROS 2 wiring of the Bayes filter: the `belief` node.
+
+Subscribes:  /abp/aspect_observation (abp_msgs/AspectObservation)
+             /abp/executed_action    (abp_msgs/ExecutedAction)
+Publishes:   /abp/belief             (abp_msgs/Belief, transient local: late joiners get the latest)
+Services:    /abp/reset_belief       (abp_msgs/ResetBelief)
+
+The science lives in `abp_belief.filter` / `abp_belief.modelset`; this module only
+converts messages and parameters.
+"""
+
+import array
+import sys
+from dataclasses import fields
+
+import numpy as np
+import rclpy
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
+
+from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
+from abp_msgs.srv import ResetBelief
+
+from . import io as model_io
+from . import population
+from .cube import ACTIONS, STATES_PER_MODEL
+from .filter import BeliefFilter, BeliefUpdateError
+from .modelset import TransitionParams
+from .observation import ObservationParams
+
+LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
+
+MODEL_SETS = ("robot", "random", "full", "visual")
+# Parameters that define the model set: changing them needs a restart.
+MODEL_PARAMETERS = {"model_file", "model_set", "model_set_size", "n_tags", "seed"}
+
+
+def _probability_range(upper=0.5):
+    return FloatingPointRange(from_value=0.0, to_value=upper, step=0.0)
+
+
+class BeliefNode(Node):
+    def __init__(self):
+        super().__init__("belief")
+        self._declare_parameters()
+        self.model_set = self._load_model_set()
+        self.filter = BeliefFilter(self.model_set)
+        self.model_set_id = model_io.fingerprint(self.model_set)
+        self.step = 0
+        # Correct once per action cycle: frames of one unchanged view are not
+        # independent evidence, so after a correction further observations wait
+        # for the next executed action (or a reset).
+        self._awaiting_observation = True
+        self._belief_pub = self.create_publisher(Belief, "/abp/belief", LATCHED)
+        self.create_subscription(AspectObservation, "/abp/aspect_observation",
+                                 self._on_observation, RELIABLE)
+        self.create_subscription(ExecutedAction, "/abp/executed_action",
+                                 self._on_executed_action, RELIABLE)
+        self.create_service(ResetBelief, "/abp/reset_belief", self._on_reset)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(
+            f"belief over {self.model_set.num_models} models "
+            f"({self.model_set.num_nodes} aspect nodes, {len(self.model_set.aspects)} aspects)")
+        self._publish_belief()
+
+    # -- parameters ---------------------------------------------------------------
+    def _declare_parameters(self):
+        def declare(name, default, description, **ranges):
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=description, **ranges))
+
+        declare("model_file", "", "Model-set file written by `models --out`; empty = generate "
+                "from model_set/model_set_size/n_tags/seed. Read-only after start.",
+                read_only=True)
+        declare("model_set", "robot", "Generated model set: robot (18 visual cubes + 2x6 "
+                "eccentric twins), random (model_set_size visual cubes), full (every visual "
+                "cube x 7 mass variants), visual (every visual cube, uniform mass).",
+                read_only=True)
+        declare("model_set_size", 30, "Number of visual cubes for model_set=random.",
+                read_only=True,
+                integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)])
+        declare("n_tags", 7, "Number of distinct tags (ArUco ids 0..n_tags-1).",
+                read_only=True, integer_range=[IntegerRange(from_value=6, to_value=50, step=1)])
+        declare("seed", 0, "Seed for the random and robot model sets.", read_only=True,
+                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)])
+        for field in fields(ObservationParams) + fields(TransitionParams):
+            declare(field.name, float(field.default),
+                    f"Model noise: {field.name.replace('_', ' ')} (see docs/MODEL.md).",
+                    read_only=True, floating_point_range=[_probability_range()])
+        declare("top_k", 10, "Number of objects and aspect nodes listed in /abp/belief.",
+                integer_range=[IntegerRange(from_value=1, to_value=1000, step=1)])
+        declare("node_floor", 1e-12, "Nodes below this fraction of the most probable node are "
+                "left out of the sparse belief in /abp/belief (the planner plans on the rest).",
+                floating_point_range=[_probability_range(1e-3)])
+        declare("correct_once_per_action", True,
+                "Use only the first observation after each executed action (true), or "
+                "every observation message (false).")
+
+    def _param(self, name):
+        return self.get_parameter(name).value
+
+    def _load_model_set(self):
+        obs = ObservationParams(**{f.name: self._param(f.name) for f in fields(ObservationParams)})
+        trans = TransitionParams(**{f.name: self._param(f.name) for f in fields(TransitionParams)})
+        path = self._param("model_file")
+        if path:
+            # A file carries its own noise parameters: the ones it was built with.
+            return model_io.load(path)
+        kind = self._param("model_set")
+        kwargs = {"observation_params": obs, "transition_params": trans}
+        n_tags = self._param("n_tags")
+        if kind == "robot":
+            return population.robot_set(seed=self._param("seed"), n_tags=n_tags, **kwargs)
+        if kind == "random":
+            return population.random_visual_subset(self._param("model_set_size"), n_tags=n_tags,
+                                                   seed=self._param("seed"), **kwargs)
+        if kind == "full":
+            return population.full_set(n_tags=n_tags, **kwargs)
+        if kind == "visual":
+            return population.visual_set(n_tags=n_tags, **kwargs)
+        raise ValueError(f"parameter model_set must be one of {', '.join(MODEL_SETS)}, "
+                         f"got {kind!r}")
+
+    def _on_set_parameters(self, params):
+        for param in params:
+            if param.name in MODEL_PARAMETERS:
+                return SetParametersResult(
+                    successful=False,
+                    reason=f"{param.name} defines the model set; restart the node to change it")
+        return SetParametersResult(successful=True)
+
+    # -- callbacks ----------------------------------------------------------------
+    def _on_observation(self, msg: AspectObservation):
+        if not msg.hypotheses:
+            self.get_logger().debug("observation without aspect hypotheses: nothing to correct")
+            return
+        if self._param("correct_once_per_action") and not self._awaiting_observation:
+            return
+        best = msg.hypotheses[0]
+        z = (int(best.aspect_type), *(int(s) for s in best.slots))
+        if z[0] == 2:
+            z = (*z[:3], -1)
+        try:
+            self.filter.correct(z)
+        except (ValueError, BeliefUpdateError) as error:
+            self.get_logger().warning(f"observation {z} ignored: {error}")
+            return
+        self._awaiting_observation = False
+        self.step += 1
+        self._publish_belief(msg.header.stamp)
+
+    def _on_executed_action(self, msg: ExecutedAction):
+        if msg.action not in ACTIONS:
+            self.get_logger().warning(
+                f"executed action {msg.action!r} is unknown (expected one of "
+                f"{', '.join(ACTIONS)}); belief not predicted")
+            return
+        if not msg.success:
+            # The skill did not run to completion: the cube was not acted on as modelled.
+            self.get_logger().info(f"{msg.action} failed ({msg.reason}); no prediction step")
+            self._awaiting_observation = True
+            return
+        self.filter.predict(msg.action)
+        self._awaiting_observation = True
+        self.step += 1
+        self._publish_belief(msg.header.stamp)
+
+    def _on_reset(self, request, response):
+        prior = np.asarray(request.model_prior, dtype=np.float64)
+        try:
+            self.filter = BeliefFilter(self.model_set, prior if prior.size else None)
+        except ValueError as error:
+            response.success = False
+            response.message = f"reset refused: {error}"
+            return response
+        self.step = 0
+        self._awaiting_observation = True
+        self._publish_belief()
+        response.success = True
+        response.message = f"belief reset over {self.model_set.num_models} models"
+        return response
+
+    # -- output -------------------------------------------------------------------
+    def _publish_belief(self, stamp=None):
+        top_k = self._param("top_k")
+        marginal = self.filter.object_marginal()
+        order = np.argsort(-marginal, kind="stable")[:top_k]
+        msg = Belief()
+        msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
+        msg.step = self.step
+        msg.object_ids = [self.model_set.names[i] for i in order]
+        msg.probabilities = marginal[order].tolist()
+        msg.total_models = self.model_set.num_models
+        msg.entropy = self.filter.entropy()
+        node_count = min(top_k, self.filter.belief.size)
+        top_nodes = np.argpartition(-self.filter.belief, node_count - 1)[:node_count]
+        top_nodes = top_nodes[np.argsort(-self.filter.belief[top_nodes], kind="stable")]
+        for node in top_nodes:
+            model, state = divmod(int(node), STATES_PER_MODEL)
+            msg.top_nodes.append(AspectNodeBelief(
+                model_index=model, object_id=self.model_set.names[model], state=state,
+                probability=float(self.filter.belief[node])))
+        floor = self._param("node_floor")
+        live = np.flatnonzero(self.filter.belief >= floor * self.filter.belief.max())
+        # array.array from raw bytes: far faster than Python lists for 70k-node beliefs.
+        msg.node_indices = array.array("I", live.astype(np.uint32).tobytes())
+        msg.node_probabilities = array.array("d", self.filter.belief[live].tobytes())
+        msg.node_floor = floor
+        msg.model_set_id = self.model_set_id
+        self._belief_pub.publish(msg)
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = BeliefNode()
+    except (ValueError, model_io.ModelFileError,
+            rclpy.exceptions.InvalidParameterValueException) as error:
+        # Bad configuration: say what is wrong and exit, rather than a traceback loop.
+        print(f"[belief] configuration error: {error}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""uBot-6-like robot description: where the URDF and camera intrinsics live, and a loader.
+
+Plain Python (no rclpy). Data files are found in the installed share directory when
+ament_index_python knows the package, else in the source tree beside this module.
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+PACKAGE_NAME = 'abp_description'
+URDF_FILE = 'ubot6.urdf'
+CAMERA_FILE = 'camera.yaml'
+
+_SOURCE_ROOT = Path(__file__).resolve().parent.parent
+
+
+def _share_dir():
+    """Installed share/abp_description, or None when not installed (or no ament index)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+    except ImportError:
+        return None
+    try:
+        return Path(get_package_share_directory(PACKAGE_NAME))
+    except Exception:  # PackageNotFoundError and friends: not installed
+        return None
+
+
+def _data_file(subdir, name):
+    candidates = []
+    share = _share_dir()
+    if share is not None:
+        candidates.append(share / subdir / name)
+    candidates.append(_SOURCE_ROOT / subdir / name)
+    for path in candidates:
+        if path.is_file():
+            return path
+    tried = ', '.join(str(p) for p in candidates)
+    raise FileNotFoundError(f'{PACKAGE_NAME}: {subdir}/{name} not found (tried {tried})')
+
+
+def urdf_path():
+    """Absolute path of the robot's URDF (str)."""
+    return str(_data_file('urdf', URDF_FILE))
+
+
+def camera_yaml_path():
+    """Absolute path of the head camera's intrinsics YAML (str)."""
+    return str(_data_file('config', CAMERA_FILE))
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple = (0.0, 0.0, 0.0, 0.0, 0.0)
+    distortion_model: str = 'plumb_bob'
+    frame_id: str = 'camera_optical_frame'
+
+    @property
+    def K(self):  # noqa: N802 -- the usual name of the camera matrix
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def D(self):  # noqa: N802
+        return np.asarray(self.distortion, dtype=float)
+
+
+def camera_intrinsics(path=None):
+    """Load the head camera's intrinsics (ROS camera_calibration YAML) as CameraIntrinsics."""
+    import yaml
+
+    path = Path(path) if path is not None else Path(camera_yaml_path())
+    with open(path) as stream:
+        doc = yaml.safe_load(stream)
+    try:
+        k = [float(v) for v in doc['camera_matrix']['data']]
+        width, height = int(doc['image_width']), int(doc['image_height'])
+        dist_doc = doc.get('distortion_coefficients') or {}
+        dist = tuple(float(v) for v in dist_doc.get('data', [0.0] * 5))
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f'{path}: not a camera calibration YAML ({err!r})') from err
+    if len(k) != 9 or width <= 0 or height <= 0 or k[0] <= 0 or k[4] <= 0:
+        raise ValueError(f'{path}: bad camera_matrix or image size')
+    return CameraIntrinsics(
+        width=width, height=height, fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion=dist,
+        distortion_model=str(doc.get('distortion_model', 'plumb_bob')),
+        frame_id=str(doc.get('frame_id', 'camera_optical_frame')),
+    )
+
+
+__all__ = ['CameraIntrinsics', 'camera_intrinsics', 'camera_yaml_path', 'urdf_path']

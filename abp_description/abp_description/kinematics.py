@@ -1,0 +1,132 @@
+"""Forward kinematics of the uBot-6-like robot on Pinocchio (no rclpy).
+
+Joint vectors here are what /joint_states carries: one position per actuated joint
+(13), in `RobotKinematics.joint_names` order. Pinocchio stores each continuous wheel
+joint as (cos, sin), so its own configuration has 15 entries; `to_pinocchio` converts.
+Poses are 4x4 homogeneous matrices in `base_link` (on the floor between the wheels,
+x forward, z up); the base's planar pose in the world comes from odometry.
+"""
+
+import numpy as np
+import pinocchio as pin
+
+from abp_description import urdf_path
+
+CAMERA_FRAME = 'camera_optical_frame'
+HAND_FRAMES = {'left': 'left_hand_link', 'right': 'right_hand_link'}
+BASE_FRAME = 'base_link'
+
+
+class RobotKinematics:
+    """Pinocchio model of the robot with a joint-state-shaped interface."""
+
+    def __init__(self, urdf=None):
+        self.urdf_path = str(urdf) if urdf is not None else urdf_path()
+        self.model = pin.buildModelFromUrdf(self.urdf_path)
+        self.data = self.model.createData()
+        joints = list(self.model.joints)[1:]  # skip 'universe'
+        self.joint_names = tuple(self.model.names[1:])
+        self._idx_q = np.array([j.idx_q for j in joints])
+        self._idx_v = np.array([j.idx_v for j in joints])
+        # A joint with nq == 2 and nv == 1 is a continuous (unbounded) revolute joint.
+        self._continuous = np.array([j.nq == 2 and j.nv == 1 for j in joints])
+        for j in joints:
+            if j.nv != 1:
+                raise ValueError(f'{self.urdf_path}: only 1-DOF joints are supported')
+        lower = self.model.lowerPositionLimit[self._idx_q].copy()
+        upper = self.model.upperPositionLimit[self._idx_q].copy()
+        lower[self._continuous] = -np.inf
+        upper[self._continuous] = np.inf
+        self.lower_limits = lower
+        self.upper_limits = upper
+        self.velocity_limits = self.model.velocityLimit[self._idx_v].copy()
+        self.effort_limits = self.model.effortLimit[self._idx_v].copy()
+
+    @property
+    def nq(self):
+        """Number of joint positions (one per actuated joint, as in /joint_states)."""
+        return len(self.joint_names)
+
+    @property
+    def continuous_joints(self):
+        return tuple(n for n, c in zip(self.joint_names, self._continuous) if c)
+
+    def joint_index(self, name):
+        return self.joint_names.index(name)
+
+    def neutral(self):
+        """All joints at zero (arms hanging, head level), clipped into the limits."""
+        return np.clip(np.zeros(self.nq), self.lower_limits, self.upper_limits)
+
+    def q_from_mapping(self, positions, default=None):
+        """Joint vector from a {name: position} mapping (e.g. a JointState); others default."""
+        q = self.neutral() if default is None else np.array(default, dtype=float)
+        for name, value in positions.items():
+            if name in self.joint_names:
+                q[self.joint_names.index(name)] = float(value)
+        return q
+
+    def within_limits(self, q, tol=1e-9):
+        q = np.asarray(q, dtype=float)
+        return bool(np.all(q >= self.lower_limits - tol) and np.all(q <= self.upper_limits + tol))
+
+    def clip(self, q):
+        return np.clip(np.asarray(q, dtype=float), self.lower_limits, self.upper_limits)
+
+    def to_pinocchio(self, q):
+        """Pinocchio configuration (cos/sin for the continuous joints) from joint positions."""
+        q = np.asarray(q, dtype=float)
+        if q.shape != (self.nq,):
+            raise ValueError(f'expected {self.nq} joint positions, got shape {q.shape}')
+        q_pin = np.zeros(self.model.nq)
+        for i, (iq, cont) in enumerate(zip(self._idx_q, self._continuous)):
+            if cont:
+                q_pin[iq], q_pin[iq + 1] = np.cos(q[i]), np.sin(q[i])
+            else:
+                q_pin[iq] = q[i]
+        return q_pin
+
+    def has_frame(self, name):
+        return self.model.existFrame(name)
+
+    def _frame_id(self, name):
+        if not self.model.existFrame(name):
+            raise KeyError(f'no frame {name!r} in {self.urdf_path}')
+        return self.model.getFrameId(name)
+
+    def frame_pose(self, q, frame_name):
+        """4x4 pose of a frame in base_link at joint positions q."""
+        fid = self._frame_id(frame_name)
+        pin.framesForwardKinematics(self.model, self.data, self.to_pinocchio(q))
+        return self.data.oMf[fid].homogeneous.copy()
+
+    def frame_poses(self, q, frame_names):
+        """Several frame poses from one forward-kinematics pass: {name: 4x4}."""
+        ids = [self._frame_id(n) for n in frame_names]
+        pin.framesForwardKinematics(self.model, self.data, self.to_pinocchio(q))
+        return {n: self.data.oMf[i].homogeneous.copy() for n, i in zip(frame_names, ids)}
+
+    def camera_pose(self, q):
+        """Pose of camera_optical_frame (z forward, x right, y down) in base_link."""
+        return self.frame_pose(q, CAMERA_FRAME)
+
+    def hand_pose(self, q, side):
+        return self.frame_pose(q, HAND_FRAMES[side])
+
+    def frame_jacobian(self, q, frame_name):
+        """6 x nq Jacobian (linear; angular) of a frame, in base_link-aligned axes."""
+        fid = self._frame_id(frame_name)
+        jac = pin.computeFrameJacobian(
+            self.model, self.data, self.to_pinocchio(q), fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+        )
+        return jac[:, self._idx_v]
+
+
+def base_to_world(base_pose):
+    """4x4 world pose of base_link from the planar base pose (x, y, yaw)."""
+    x, y, yaw = (float(v) for v in base_pose)
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.eye(4)
+    out[:2, :2] = [[c, -s], [s, c]]
+    out[0, 3], out[1, 3] = x, y
+    return out

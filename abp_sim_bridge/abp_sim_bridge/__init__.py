@@ -1,0 +1,1 @@
+"""Simulated uBot-6 and ARcube world (plain modules; the ROS node wraps them)."""

@@ -11,16 +11,10 @@ converts messages and parameters.
 
 import array
 import sys
-from dataclasses import fields
 
 import numpy as np
 import rclpy
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
@@ -29,30 +23,26 @@ from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAc
 from abp_msgs.srv import ResetBelief
 
 from . import io as model_io
-from . import population
 from .cube import ACTIONS, STATES_PER_MODEL
 from .filter import BeliefFilter, BeliefUpdateError
-from .modelset import TransitionParams
-from .observation import ObservationParams
+from .model_set_params import (
+    MODEL_SET_PARAMETERS,
+    declare_model_set_parameters,
+    integer_range,
+    load_model_set,
+    probability_range,
+)
 
 LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
                      durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
-
-MODEL_SETS = ("robot", "random", "full", "visual")
-# Parameters that define the model set: changing them needs a restart.
-MODEL_PARAMETERS = {"model_file", "model_set", "model_set_size", "n_tags", "seed"}
-
-
-def _probability_range(upper=0.5):
-    return FloatingPointRange(from_value=0.0, to_value=upper, step=0.0)
 
 
 class BeliefNode(Node):
     def __init__(self):
         super().__init__("belief")
         self._declare_parameters()
-        self.model_set = self._load_model_set()
+        self.model_set = load_model_set(self)
         self.filter = BeliefFilter(self.model_set)
         self.model_set_id = model_io.fingerprint(self.model_set)
         self.step = 0
@@ -74,65 +64,24 @@ class BeliefNode(Node):
 
     # -- parameters ---------------------------------------------------------------
     def _declare_parameters(self):
-        def declare(name, default, description, **ranges):
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, **ranges))
-
-        declare("model_file", "", "Model-set file written by `models --out`; empty = generate "
-                "from model_set/model_set_size/n_tags/seed. Read-only after start.",
-                read_only=True)
-        declare("model_set", "robot", "Generated model set: robot (18 visual cubes + 2x6 "
-                "eccentric twins), random (model_set_size visual cubes), full (every visual "
-                "cube x 7 mass variants), visual (every visual cube, uniform mass).",
-                read_only=True)
-        declare("model_set_size", 30, "Number of visual cubes for model_set=random.",
-                read_only=True,
-                integer_range=[IntegerRange(from_value=1, to_value=100000, step=1)])
-        declare("n_tags", 7, "Number of distinct tags (ArUco ids 0..n_tags-1).",
-                read_only=True, integer_range=[IntegerRange(from_value=6, to_value=50, step=1)])
-        declare("seed", 0, "Seed for the random and robot model sets.", read_only=True,
-                integer_range=[IntegerRange(from_value=0, to_value=2**31 - 1, step=1)])
-        for field in fields(ObservationParams) + fields(TransitionParams):
-            declare(field.name, float(field.default),
-                    f"Model noise: {field.name.replace('_', ' ')} (see docs/MODEL.md).",
-                    read_only=True, floating_point_range=[_probability_range()])
-        declare("top_k", 10, "Number of objects and aspect nodes listed in /abp/belief.",
-                integer_range=[IntegerRange(from_value=1, to_value=1000, step=1)])
-        declare("node_floor", 1e-12, "Nodes below this fraction of the most probable node are "
-                "left out of the sparse belief in /abp/belief (the planner plans on the rest).",
-                floating_point_range=[_probability_range(1e-3)])
-        declare("correct_once_per_action", True,
-                "Use only the first observation after each executed action (true), or "
-                "every observation message (false).")
+        declare_model_set_parameters(self)
+        self.declare_parameter("top_k", 10, ParameterDescriptor(
+            description="Number of objects and aspect nodes listed in /abp/belief.",
+            integer_range=integer_range(1, 1000)))
+        self.declare_parameter("node_floor", 1e-12, ParameterDescriptor(
+            description="Nodes below this fraction of the most probable node are left out "
+            "of the sparse belief in /abp/belief (the planner plans on the rest).",
+            floating_point_range=probability_range(1e-3)))
+        self.declare_parameter("correct_once_per_action", True, ParameterDescriptor(
+            description="Use only the first observation after each executed action (true), "
+            "or every observation message (false)."))
 
     def _param(self, name):
         return self.get_parameter(name).value
 
-    def _load_model_set(self):
-        obs = ObservationParams(**{f.name: self._param(f.name) for f in fields(ObservationParams)})
-        trans = TransitionParams(**{f.name: self._param(f.name) for f in fields(TransitionParams)})
-        path = self._param("model_file")
-        if path:
-            # A file carries its own noise parameters: the ones it was built with.
-            return model_io.load(path)
-        kind = self._param("model_set")
-        kwargs = {"observation_params": obs, "transition_params": trans}
-        n_tags = self._param("n_tags")
-        if kind == "robot":
-            return population.robot_set(seed=self._param("seed"), n_tags=n_tags, **kwargs)
-        if kind == "random":
-            return population.random_visual_subset(self._param("model_set_size"), n_tags=n_tags,
-                                                   seed=self._param("seed"), **kwargs)
-        if kind == "full":
-            return population.full_set(n_tags=n_tags, **kwargs)
-        if kind == "visual":
-            return population.visual_set(n_tags=n_tags, **kwargs)
-        raise ValueError(f"parameter model_set must be one of {', '.join(MODEL_SETS)}, "
-                         f"got {kind!r}")
-
     def _on_set_parameters(self, params):
         for param in params:
-            if param.name in MODEL_PARAMETERS:
+            if param.name in MODEL_SET_PARAMETERS:
                 return SetParametersResult(
                     successful=False,
                     reason=f"{param.name} defines the model set; restart the node to change it")

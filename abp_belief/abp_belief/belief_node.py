@@ -50,6 +50,8 @@ class BeliefNode(Node):
         # independent evidence, so after a correction further observations wait
         # for the next executed action (or a reset).
         self._awaiting_observation = True
+        # Frames taken before the last action ended show the old state: skip them.
+        self._earliest_observation_ns = 0
         self._belief_pub = self.create_publisher(Belief, "/abp/belief", LATCHED)
         self.create_subscription(AspectObservation, "/abp/aspect_observation",
                                  self._on_observation, RELIABLE)
@@ -94,6 +96,8 @@ class BeliefNode(Node):
             return
         if self._param("correct_once_per_action") and not self._awaiting_observation:
             return
+        if _stamp_ns(msg.header.stamp) < self._earliest_observation_ns:
+            return
         best = msg.hypotheses[0]
         z = (int(best.aspect_type), *(int(s) for s in best.slots))
         if z[0] == 2:
@@ -108,6 +112,7 @@ class BeliefNode(Node):
         self._publish_belief(msg.header.stamp)
 
     def _on_executed_action(self, msg: ExecutedAction):
+        self._earliest_observation_ns = _stamp_ns(msg.header.stamp)
         if msg.action not in ACTIONS:
             self.get_logger().warning(
                 f"executed action {msg.action!r} is unknown (expected one of "
@@ -133,6 +138,7 @@ class BeliefNode(Node):
             return response
         self.step = 0
         self._awaiting_observation = True
+        self._earliest_observation_ns = 0
         self._publish_belief()
         response.success = True
         response.message = f"belief reset over {self.model_set.num_models} models"
@@ -166,6 +172,10 @@ class BeliefNode(Node):
         msg.node_floor = floor
         msg.model_set_id = self.model_set_id
         self._belief_pub.publish(msg)
+
+
+def _stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def main(args=None):

@@ -96,14 +96,24 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     spin(executor, lambda: False, 0.5)
     assert beliefs[-1].step == 1
 
-    act_pub.publish(ExecutedAction(action="ORBIT_P90", success=True, sequence=1))
+    orbit = ExecutedAction(action="ORBIT_P90", success=True, sequence=1)
+    orbit.header.stamp.sec = 100
+    act_pub.publish(orbit)
     assert spin(executor, lambda: beliefs[-1].step == 2, 10), "action not applied"
     reference.predict("ORBIT_P90")
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
                                reference.object_marginal(), atol=1e-12)
 
+    # A frame taken before the action ended shows the old view: ignored.
+    stale = observation_msg(z1)
+    stale.header.stamp.sec = 99
+    obs_pub.publish(stale)
+    spin(executor, lambda: False, 0.5)
+    assert beliefs[-1].step == 2
     z2 = models.aspect_key(models.node_aspect[true_model * STATES_PER_MODEL + 3])
-    obs_pub.publish(observation_msg(z2))
+    fresh = observation_msg(z2)
+    fresh.header.stamp.sec = 101
+    obs_pub.publish(fresh)
     assert spin(executor, lambda: beliefs[-1].step == 3, 10)
     reference.correct(z2)
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),

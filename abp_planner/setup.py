@@ -21,6 +21,8 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'benchmark = abp_planner.benchmark:main',
+            'planner = abp_planner.planner_node:main',
         ],
     },
 )

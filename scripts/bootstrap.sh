@@ -15,10 +15,8 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$REPO/.venv"
 REQ_DIR="$REPO/requirements"
 ROS_DISTRO_DIR="/opt/ros/jazzy"
-PACKAGES=(abp_msgs abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge)
-for optional in abp_bringup; do
-  [ -d "$REPO/$optional" ] && PACKAGES+=("$optional")
-done
+PACKAGES=(abp_msgs abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge
+          abp_bringup)
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
 die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }

@@ -1,0 +1,1 @@
+"""Bringup of the whole abp graph: parameters, launch file, Recognize client, bags."""

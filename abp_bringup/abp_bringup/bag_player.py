@@ -1,0 +1,99 @@
+"""`bag_player`: replays a rosbag2 bag (MCAP or sqlite3) into the graph.
+
+    bag_player BAG [--topics T ...] [--rate R | --fast] [--wait-for TOPIC ...]
+
+Messages are published serialized, as recorded, with the QoS each topic uses in
+the graph. --rate 1 keeps the recorded timing; --fast publishes as fast as
+the subscribers take it. --wait-for waits until each named topic has a
+subscriber before the first message is sent.
+"""
+
+import argparse
+import sys
+import time
+
+import rclpy
+from rclpy.executors import ExternalShutdownException
+
+from .bag import BagError, bag_topics, read_bag
+from .bag_recorder_node import message_class, topic_qos
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
+    parser.add_argument("bag", help="bag directory")
+    parser.add_argument("--topics", nargs="*", default=None, help="topics to replay (default all)")
+    timing = parser.add_mutually_exclusive_group()
+    timing.add_argument("--rate", type=float, default=1.0, help="time scale (1 = as recorded)")
+    timing.add_argument("--fast", action="store_true", help="as fast as possible")
+    parser.add_argument("--wait-for", nargs="*", default=[], metavar="TOPIC",
+                        help="wait until these topics have a subscriber")
+    parser.add_argument("--wait-timeout", type=float, default=30.0)
+    parser.add_argument("--gap", type=float, default=0.002,
+                        help="seconds between messages with --fast (lets DDS deliver in order)")
+    args = parser.parse_args(argv)
+    if args.rate <= 0:
+        parser.error("--rate must be > 0")
+    return args
+
+
+def play(publishers, messages, rate, fast, gap):
+    first_stamp = None
+    started = time.monotonic()
+    count = 0
+    for topic, _msgtype, stamp, data in messages:
+        if fast:
+            time.sleep(gap)
+        else:
+            first_stamp = stamp if first_stamp is None else first_stamp
+            delay = (stamp - first_stamp) / 1e9 / rate - (time.monotonic() - started)
+            if delay > 0:
+                time.sleep(delay)
+        publishers[topic].publish(data)
+        count += 1
+    return count
+
+
+def main(argv=None):
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    rclpy.init()
+    node = rclpy.create_node("bag_player")
+    try:
+        topics = bag_topics(args.bag)
+        if args.topics:
+            missing = sorted(set(args.topics) - set(topics))
+            if missing:
+                raise BagError(f"topics {missing} are not in {args.bag} (it has "
+                               f"{', '.join(sorted(topics))})")
+            topics = {t: topics[t] for t in args.topics}
+        # All publishers first, so that nothing is published before it is matched.
+        publishers = {topic: node.create_publisher(message_class(msgtype), topic,
+                                                   topic_qos(topic))
+                      for topic, msgtype in topics.items()}
+        deadline = time.monotonic() + args.wait_timeout
+        for topic in args.wait_for:
+            if topic not in publishers:
+                raise BagError(f"--wait-for {topic}: not a replayed topic")
+            while publishers[topic].get_subscription_count() == 0:
+                if time.monotonic() > deadline:
+                    print(f"[bag_player] no subscriber on {topic} within {args.wait_timeout} s",
+                          file=sys.stderr)
+                    return 1
+                time.sleep(0.05)
+        count = play(publishers, read_bag(args.bag, list(topics)), args.rate, args.fast,
+                     args.gap)
+        time.sleep(0.5)  # let reliable DDS deliver the tail before the node goes away
+        print(f"[bag_player] replayed {count} messages from {args.bag}")
+        return 0
+    except BagError as error:
+        print(f"[bag_player] {error}", file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        return 130
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

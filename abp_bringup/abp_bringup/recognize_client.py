@@ -1,0 +1,175 @@
+"""`recognize`: sends one Recognize goal and prints a readable trace and the result.
+
+    recognize [--planner MODE] [--max-actions N] [--threshold P] [--result-json FILE]
+              [--timeout S] [--wait S]
+
+Trace lines show each chosen action with its expected information gain, the top
+beliefs and the entropy. In sim, the result is compared with the sim bridge's
+ground truth (read here, by the user-facing client, never by a recognition node).
+Exit code 0 when the recognition succeeded (and matched the ground truth when
+there is one), 1 otherwise, 2 for bad arguments, 130 on Ctrl-C (the goal is
+cancelled first).
+"""
+
+import argparse
+import json
+import sys
+import time
+
+import rclpy
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
+
+from abp_msgs.action import Recognize
+from abp_msgs.msg import Belief, ExecutedAction, PlanStep, SimGroundTruth
+
+LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=50, reliability=QoSReliabilityPolicy.RELIABLE)
+STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",
+                GoalStatus.STATUS_CANCELED: "cancelled"}
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog="recognize", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--planner", default="", help="random, abp, abp2, abp3 or cost "
+                        "(default: the planner node's parameter)")
+    parser.add_argument("--max-actions", type=int, default=0)
+    parser.add_argument("--threshold", type=float, default=0.0)
+    parser.add_argument("--result-json", default="")
+    parser.add_argument("--timeout", type=float, default=1800.0,
+                        help="wall-clock seconds before the goal is cancelled")
+    parser.add_argument("--wait", type=float, default=120.0,
+                        help="seconds to wait for the graph (the /abp/recognize server)")
+    args = parser.parse_args(argv)
+    if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0:
+        parser.error("--max-actions must be >= 0 and --threshold in [0, 1)")
+    return args
+
+
+def top_beliefs(belief, count=3):
+    return ", ".join(f"{oid} {p:.3f}" for oid, p in
+                     zip(belief.object_ids[:count], belief.probabilities))
+
+
+class Tracer:
+    """Prints the trace from /abp/plan, /abp/executed_action and /abp/belief."""
+
+    def __init__(self, node):
+        self.belief = None
+        self.ground_truth = None
+        node.create_subscription(PlanStep, "/abp/plan", self.on_plan, RELIABLE)
+        node.create_subscription(ExecutedAction, "/abp/executed_action", self.on_executed,
+                                 RELIABLE)
+        node.create_subscription(Belief, "/abp/belief", self.on_belief, LATCHED)
+        node.create_subscription(SimGroundTruth, "/abp/sim/ground_truth", self.on_truth, LATCHED)
+
+    def on_plan(self, msg):
+        line = f"plan      {msg.action:<10} expected IG {msg.expected_information_gain:6.3f} bits"
+        refused = [a for a, ok in zip(msg.candidate_actions, msg.candidate_feasible) if not ok]
+        if refused:
+            line += f"  (infeasible: {', '.join(refused)})"
+        print(line, flush=True)
+
+    def on_executed(self, msg):
+        outcome = "done" if msg.success else f"FAILED: {msg.reason}"
+        duration = msg.duration.sec + msg.duration.nanosec * 1e-9
+        print(f"action {msg.sequence:<3}{msg.action:<10} {outcome} ({duration:.1f} s)",
+              flush=True)
+
+    def on_belief(self, msg):
+        self.belief = msg
+        if msg.object_ids:
+            print(f"belief    step {msg.step:<3} H {msg.entropy:6.3f} bits  top: "
+                  f"{top_beliefs(msg)}", flush=True)
+
+    def on_truth(self, msg):
+        self.ground_truth = msg
+
+
+def spin_until(node, predicate, timeout):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not predicate():
+        rclpy.spin_once(node, timeout_sec=0.05)
+    return predicate()
+
+
+def main(argv=None):
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    rclpy.init()
+    node = rclpy.create_node("recognize_client")
+    tracer = Tracer(node)
+    client = ActionClient(node, Recognize, "/abp/recognize")
+    handle = None
+    try:
+        if not spin_until(node, client.server_is_ready, args.wait):
+            print(f"[recognize] no /abp/recognize server within {args.wait:.0f} s: is the "
+                  "planner running?", file=sys.stderr)
+            return 1
+        goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
+                              posterior_threshold=args.threshold)
+        sent = client.send_goal_async(goal)
+        spin_until(node, sent.done, 30.0)
+        handle = sent.result() if sent.done() else None
+        if handle is None or not handle.accepted:
+            print("[recognize] goal rejected (unknown planner mode, or a recognition is "
+                  "already running)", file=sys.stderr)
+            return 1
+        print(f"recognize goal accepted (planner {args.planner or 'default'})", flush=True)
+        result_future = handle.get_result_async()
+        if not spin_until(node, result_future.done, args.timeout):
+            print(f"[recognize] no result within {args.timeout:.0f} s; cancelling",
+                  file=sys.stderr)
+            cancel = handle.cancel_goal_async()
+            spin_until(node, cancel.done, 10.0)
+            spin_until(node, result_future.done, 30.0)
+            if not result_future.done():
+                return 1
+        response = result_future.result()
+        spin_until(node, lambda: False, 0.3)  # let the last belief/trace messages arrive
+        return report(response, tracer, args.result_json)
+    except KeyboardInterrupt:
+        if handle is not None and handle.accepted:
+            print("\n[recognize] Ctrl-C: cancelling the goal", file=sys.stderr)
+            cancel = handle.cancel_goal_async()
+            spin_until(node, cancel.done, 5.0)
+        return 130
+    finally:
+        client.destroy()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def report(response, tracer, result_json):
+    result = response.result
+    elapsed = result.elapsed.sec + result.elapsed.nanosec * 1e-9
+    summary = {
+        "status": STATUS_NAMES.get(response.status, str(response.status)),
+        "success": bool(result.success),
+        "reason": result.reason,
+        "object_id": result.object_id,
+        "posterior": float(result.posterior),
+        "actions": int(result.actions_taken),
+        "elapsed_s": elapsed,
+        "entropy": float(tracer.belief.entropy) if tracer.belief else None,
+    }
+    truth = tracer.ground_truth
+    if truth is not None:
+        summary["ground_truth"] = truth.object_id
+        summary["correct"] = truth.object_id == result.object_id
+    print(f"result: {summary['status']}: {result.object_id or '-'} posterior "
+          f"{result.posterior:.3f} after {result.actions_taken} actions, {elapsed:.1f} s "
+          f"({result.reason})", flush=True)
+    if truth is not None:
+        print(f"ground truth: {truth.object_id} -> "
+              f"{'correct' if summary['correct'] else 'WRONG'}", flush=True)
+    if result_json:
+        with open(result_json, "w") as out:
+            json.dump(summary, out, indent=2)
+    ok = response.status == GoalStatus.STATUS_SUCCEEDED and result.success
+    return 0 if ok and summary.get("correct", True) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,120 @@
+"""Record a recognition episode to a rosbag2 MCAP bag and replay it, over real DDS.
+
+The episode runs the real belief and planner nodes against the model-sampled
+world (tests/helpers/model_world_node.py), driven by the `recognize` client;
+the `bag_recorder` writes it. Replaying the recorded observations and executed
+actions into a fresh belief node reproduces the recorded identification.
+"""
+
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+ament_index = pytest.importorskip("ament_index_python.packages")
+
+from abp_bringup.bag import BagError, bag_topics, deserialize, read_bag, typestore  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
+
+from abp_belief.population import robot_set  # noqa: E402
+from abp_msgs.msg import Belief  # noqa: E402
+
+REPO = pathlib.Path(__file__).resolve().parents[2]
+WORLD = REPO / "tests" / "helpers" / "model_world_node.py"
+SEED = 5
+TRUE_MODEL = 9
+LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def executable(package, name):
+    return os.path.join(ament_index.get_package_prefix(package), "lib", package, name)
+
+
+def model_params():
+    return ["--ros-args", "-p", "model_set:=robot", "-p", f"seed:={SEED}"]
+
+
+def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_context, spin,
+                                                          tmp_path):
+    bag = tmp_path / "episode"
+    ros_processes.start([executable("abp_belief", "belief"), *model_params()])
+    ros_processes.start([executable("abp_planner", "planner"), *model_params()])
+    world = ros_processes.start([sys.executable, str(WORLD), "robot", str(SEED),
+                                 str(TRUE_MODEL)])
+    recorder = ros_processes.start([executable("abp_bringup", "bag_recorder"), "--ros-args",
+                                    "-p", f"output:={bag}"])
+    ros_processes.wait_for_line(world, "READY", timeout=30)
+    ros_processes.wait_for_line(recorder, "recording", timeout=30)
+
+    result_file = tmp_path / "result.json"
+    client = subprocess.run([executable("abp_bringup", "recognize"), "--threshold", "0.99",
+                             "--result-json", str(result_file)],
+                            capture_output=True, text=True, timeout=180)
+    assert client.returncode == 0, client.stdout + client.stderr
+    assert "plan " in client.stdout and "belief " in client.stdout  # the readable trace
+    result = json.loads(result_file.read_text())
+    truth = robot_set(seed=SEED).names[TRUE_MODEL]
+    assert result["object_id"] == truth and result["posterior"] >= 0.99
+
+    os.killpg(recorder.pid, signal.SIGINT)
+    assert recorder.wait(timeout=20) == 0
+    topics = bag_topics(bag)
+    assert topics["/abp/belief"] == "abp_msgs/msg/Belief"
+    assert (bag / "metadata.yaml").read_text().count("storage_identifier: mcap") == 1
+    recorded = list(read_bag(bag))
+    counts = {t: sum(1 for m in recorded if m[0] == t) for t in topics}
+    assert counts["/abp/executed_action"] == result["actions"]
+    assert counts["/abp/plan"] == result["actions"]
+    store = typestore()
+    last_belief = deserialize(store, [m for m in recorded if m[0] == "/abp/belief"][-1][3],
+                              "abp_msgs/msg/Belief")
+    assert last_belief.object_ids[0] == truth
+
+    # Replay observations and actions into a fresh belief node, as fast as possible.
+    ros_processes.stop_all()
+    replay_belief = ros_processes.start([executable("abp_belief", "belief"), *model_params()])
+    node = rclpy.create_node("replay_checker", context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    beliefs = []
+    node.create_subscription(Belief, "/abp/belief", beliefs.append, LATCHED)
+    assert spin(executor, lambda: beliefs, 30)
+    player = subprocess.run(
+        [executable("abp_bringup", "bag_player"), str(bag), "--fast", "--topics",
+         "/abp/aspect_observation", "/abp/executed_action", "--wait-for",
+         "/abp/aspect_observation", "/abp/executed_action"],
+        capture_output=True, text=True, timeout=120)
+    assert player.returncode == 0, player.stderr
+    assert spin(executor, lambda: beliefs[-1].step >= last_belief.step, 20), \
+        (beliefs[-1].step, last_belief.step)
+    spin(executor, lambda: False, 0.5)
+    assert beliefs[-1].object_ids[0] == truth
+    assert beliefs[-1].probabilities[0] == pytest.approx(last_belief.probabilities[0], abs=0.02)
+    assert replay_belief.poll() is None
+    executor.shutdown()
+    node.destroy_node()
+
+
+def test_bad_bags_are_refused_clearly(tmp_path):
+    with pytest.raises(BagError, match="does not exist"):
+        bag_topics(tmp_path / "missing")
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9")
+    with pytest.raises(BagError, match="cannot read bag"):
+        bag_topics(broken)
+    player = subprocess.run([executable("abp_bringup", "bag_player"), str(tmp_path / "missing")],
+                            capture_output=True, text=True, timeout=60)
+    assert player.returncode == 2 and "does not exist" in player.stderr
+    existing = tmp_path / "exists"
+    existing.mkdir()
+    recorder = subprocess.run([executable("abp_bringup", "bag_recorder"), "--ros-args", "-p",
+                               f"output:={existing}"], capture_output=True, text=True, timeout=60)
+    assert recorder.returncode == 2 and "already exists" in recorder.stderr

@@ -1,0 +1,143 @@
+#!/usr/bin/env bash
+# Start the whole abp graph, recognise the object in front of the robot, shut down.
+#
+#   scripts/start_graph.sh [options]
+#
+# By default it runs in simulation: the sim bridge stands in for the robot, with a
+# seeded random hidden cube from the model set. It bootstraps first on a fresh
+# machine, starts every node (with `ros2 run` where ros2 is on PATH, else the same
+# installed executables), waits until the graph is up, sends a Recognize goal,
+# prints the trace and the result, and stops every process (also on Ctrl-C).
+#
+# Options:
+#   --robot              run on the robot: no sim bridge, no sim time
+#   --object N           hidden cube in sim: index into the model set (default: seeded random)
+#   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
+#   --planner MODE       random | abp | abp2 | abp3 | cost                   (default abp)
+#   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
+#   --params FILE        extra parameters YAML (<node>: ros__parameters: ...), applied last
+#   --record DIR         record the graph's topics to a rosbag2 (MCAP) bag in DIR
+#   --result-json FILE   write the result (object, posterior, actions, time, ground truth)
+#   --speedup X          sim time speed-up (default 10)
+#   --max-actions N      action budget (default 30)
+#   --timeout S          wall-clock limit of the recognition (default 1800)
+#   --log-dir DIR        where node logs go (default log/graph-<time>)
+set -euo pipefail
+REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+
+robot=0; object=-1; models=robot; planner=abp; seed=0; params=""; record=""; result_json=""
+speedup=10; max_actions=30; timeout=1800; log_dir=""
+usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+die() { echo "[start_graph] error: $*" >&2; exit 2; }
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --robot) robot=1; shift ;;
+    --object) object="${2:?--object needs a value}"; shift 2 ;;
+    --models) models="${2:?--models needs a value}"; shift 2 ;;
+    --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
+    --seed) seed="${2:?--seed needs a value}"; shift 2 ;;
+    --params) params="${2:?--params needs a file}"; shift 2 ;;
+    --record) record="${2:?--record needs a directory}"; shift 2 ;;
+    --result-json) result_json="${2:?--result-json needs a file}"; shift 2 ;;
+    --speedup) speedup="${2:?--speedup needs a value}"; shift 2 ;;
+    --max-actions) max_actions="${2:?--max-actions needs a value}"; shift 2 ;;
+    --timeout) timeout="${2:?--timeout needs a value}"; shift 2 ;;
+    --log-dir) log_dir="${2:?--log-dir needs a directory}"; shift 2 ;;
+    -h|--help) usage; exit 0 ;;
+    *) die "unknown option $1 (see --help)" ;;
+  esac
+done
+case "$planner" in random|abp|abp2|abp3|cost) ;; *) die "--planner must be random, abp, abp2, abp3 or cost" ;; esac
+[[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
+[[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
+[ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
+[ -z "$record" ] || [ ! -e "$record" ] || die "--record $record exists: rosbag2 never overwrites a bag"
+
+# Model-set parameters shared by every node that loads the model set.
+model_args=(-p "seed:=$seed")
+case "$models" in
+  robot|full|visual) model_args+=(-p "model_set:=$models") ;;
+  random:*) model_args+=(-p "model_set:=random" -p "model_set_size:=${models#random:}") ;;
+  *) [ -f "$models" ] || die "--models: $models is neither a set name nor a file"
+     model_args+=(-p "model_file:=$(cd "$(dirname "$models")" && pwd)/$(basename "$models")") ;;
+esac
+
+"$REPO/scripts/bootstrap.sh"
+# shellcheck disable=SC1091
+set +u; source "$REPO/scripts/env.sh"; set -u
+
+config="$(python -c 'from ament_index_python.packages import get_package_share_directory as g; print(g("abp_bringup"))')/config/abp.yaml"
+log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
+mkdir -p "$log_dir"
+
+pids=()
+cleanup() {
+  trap - EXIT INT TERM
+  if [ ${#pids[@]} -gt 0 ]; then
+    echo "[start_graph] stopping ${#pids[@]} processes"
+    kill -INT "${pids[@]}" 2>/dev/null || true
+    for _ in $(seq 50); do
+      alive=0
+      for pid in "${pids[@]}"; do kill -0 "$pid" 2>/dev/null && alive=1; done
+      [ "$alive" = 0 ] && break
+      sleep 0.1
+    done
+    kill -KILL "${pids[@]}" 2>/dev/null || true
+    wait 2>/dev/null || true
+  fi
+}
+trap cleanup EXIT
+trap 'exit 130' INT TERM
+
+# start PACKAGE EXECUTABLE [ros args...]: ros2 run where available, else the installed file.
+start() {
+  local package="$1" executable="$2"; shift 2
+  local sim_time=(-p "use_sim_time:=true")
+  [ "$robot" = 1 ] && sim_time=()
+  [ "$package/$executable" = abp_sim_bridge/sim_bridge ] && sim_time=()
+  local ros_args=(--ros-args --params-file "$config")
+  [ -n "$params" ] && ros_args+=(--params-file "$params")
+  ros_args+=("${sim_time[@]}" "$@")
+  if command -v ros2 >/dev/null 2>&1; then
+    ros2 run "$package" "$executable" "${ros_args[@]}" > "$log_dir/$executable.log" 2>&1 &
+  else
+    "$REPO/install/$package/lib/$package/$executable" "${ros_args[@]}" \
+      > "$log_dir/$executable.log" 2>&1 &
+  fi
+  pids+=("$!")
+}
+
+echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo sim ) graph, models $models, planner $planner, seed $seed; logs in $log_dir"
+if [ "$robot" = 0 ]; then
+  start abp_sim_bridge sim_bridge "${model_args[@]}" -p "model_index:=$object" \
+    -p "cube_seed:=$seed" -p "speedup:=$speedup"
+fi
+start abp_perception artag_detector
+start abp_perception aspect_matcher "${model_args[@]}"
+start abp_belief belief "${model_args[@]}"
+for skill in orbit push lift flip; do
+  start abp_skills "${skill}_server"
+done
+start abp_planner planner "${model_args[@]}" -p "planner_mode:=$planner" \
+  -p "max_actions:=$max_actions"
+if [ -n "$record" ]; then
+  start abp_bringup bag_recorder -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
+fi
+
+# A node that dies at start-up (bad parameter, missing model file) ends the run.
+sleep 2
+for i in "${!pids[@]}"; do
+  if ! kill -0 "${pids[$i]}" 2>/dev/null; then
+    echo "[start_graph] a node exited at start-up; its log:" >&2
+    for log in "$log_dir"/*.log; do
+      grep -l "error" "$log" >/dev/null 2>&1 && { echo "== $log" >&2; tail -5 "$log" >&2; }
+    done
+    exit 1
+  fi
+done
+
+client_args=(--planner "$planner" --max-actions "$max_actions" --timeout "$timeout")
+[ -n "$result_json" ] && client_args+=(--result-json "$result_json")
+rc=0
+"$REPO/install/abp_bringup/lib/abp_bringup/recognize" "${client_args[@]}" || rc=$?
+exit "$rc"

@@ -9,6 +9,7 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
+        ('share/' + PACKAGE + '/config', ['config/fastdds_large_images.xml']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -21,6 +22,9 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'sim_bridge = abp_sim_bridge.sim_bridge_node:main',
+            'bench_render = abp_sim_bridge.bench_render:main',
+            'sim_bridge_benchmark = abp_sim_bridge.bench_sim_bridge:main',
         ],
     },
 )

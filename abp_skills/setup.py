@@ -21,6 +21,12 @@ setup(
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'skill_servers = abp_skills.skills_node:main',
+            'orbit_server = abp_skills.skills_node:orbit_main',
+            'push_server = abp_skills.skills_node:push_main',
+            'lift_server = abp_skills.skills_node:lift_main',
+            'flip_server = abp_skills.skills_node:flip_main',
+            'skills_benchmark = abp_skills.benchmark:main',
         ],
     },
 )

@@ -11,12 +11,10 @@ from dataclasses import fields
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 
-from . import io as model_io
 from . import population
 from .modelset import TransitionParams
 from .observation import ObservationParams
 
-MODEL_SETS = ("robot", "random", "full", "visual")
 # Parameters that define the model set: changing them needs a restart.
 MODEL_SET_PARAMETERS = ("model_file", "model_set", "model_set_size", "n_tags", "seed") + tuple(
     f.name for f in fields(ObservationParams) + fields(TransitionParams))
@@ -61,25 +59,10 @@ def load_model_set(node):
     def param(name):
         return node.get_parameter(name).value
 
-    path = param("model_file")
-    if path:
-        # A file carries its own noise parameters: the ones it was built with.
-        return model_io.load(path)
-    kwargs = {
-        "observation_params": ObservationParams(
+    return population.model_set_from_config(
+        model_set=param("model_set"), model_set_size=param("model_set_size"),
+        n_tags=param("n_tags"), seed=param("seed"), model_file=param("model_file"),
+        observation_params=ObservationParams(
             **{f.name: param(f.name) for f in fields(ObservationParams)}),
-        "transition_params": TransitionParams(
-            **{f.name: param(f.name) for f in fields(TransitionParams)}),
-        "n_tags": param("n_tags"),
-    }
-    kind = param("model_set")
-    if kind == "robot":
-        return population.robot_set(seed=param("seed"), **kwargs)
-    if kind == "random":
-        return population.random_visual_subset(param("model_set_size"), seed=param("seed"),
-                                               **kwargs)
-    if kind == "full":
-        return population.full_set(**kwargs)
-    if kind == "visual":
-        return population.visual_set(**kwargs)
-    raise ValueError(f"parameter model_set must be one of {', '.join(MODEL_SETS)}, got {kind!r}")
+        transition_params=TransitionParams(
+            **{f.name: param(f.name) for f in fields(TransitionParams)}))

@@ -123,3 +123,28 @@ def robot_set(seed=0, n_tags=7, **model_kwargs) -> ModelSet:
             rows.append(v)
             masses.append(m)
     return ModelSet(faces[rows], masses, n_tags, **model_kwargs)
+
+
+MODEL_SETS = ("robot", "random", "full", "visual")
+
+
+def model_set_from_config(model_set="robot", model_set_size=30, n_tags=7, seed=0,
+                          model_file="", **model_kwargs) -> ModelSet:
+    """The model set every node builds from the same parameters (belief, planner,
+    aspect matcher, sim bridge): a file when `model_file` is set, else a generated set.
+
+    Raises ValueError for an unknown set, or io.ModelFileError for a bad file.
+    """
+    if model_file:
+        from . import io as model_io  # io imports modelset only: no cycle
+        return model_io.load(model_file)
+    if model_set == "robot":
+        return robot_set(seed=seed, n_tags=n_tags, **model_kwargs)
+    if model_set == "random":
+        return random_visual_subset(model_set_size, n_tags=n_tags, seed=seed, **model_kwargs)
+    if model_set == "full":
+        return full_set(n_tags=n_tags, **model_kwargs)
+    if model_set == "visual":
+        return visual_set(n_tags=n_tags, **model_kwargs)
+    raise ValueError(f"parameter model_set must be one of {', '.join(MODEL_SETS)}, "
+                     f"got {model_set!r}")

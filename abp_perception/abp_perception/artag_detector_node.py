@@ -1,0 +1,246 @@
+"""ROS 2 wiring of the tag detector: the `artag_detector` node.
+
+Subscribes:  /camera/image_raw   (sensor_msgs/Image, sensor-data QoS)
+             /camera/camera_info (sensor_msgs/CameraInfo, sensor-data QoS)
+             /joint_states       (sensor_msgs/JointState; camera pose by forward kinematics)
+Publishes:   /abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the image's
+             header stamp; poses in `base_frame` once a joint state has arrived, else in
+             the camera frame)
+
+The science lives in `abp_perception.detector`; the camera pose in the base frame comes
+from `abp_description.kinematics.RobotKinematics` (Pinocchio over /joint_states, no tf2).
+Images without camera_info are skipped (throttled warning); images in an unsupported
+encoding are skipped with a clear (throttled) error.
+"""
+
+import sys
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Point32
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image, JointState
+
+from abp_msgs.msg import TagDetection, TagDetectionArray
+
+from .detector import DICTIONARY_NAMES, ImageEncodingError, TagDetector, image_msg_to_gray
+from .geometry import rotation_to_quaternion
+
+RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
+THROTTLE_S = 5.0
+DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
+# Parameters the running detector is rebuilt from when they change.
+DETECTOR_PARAMETERS = ("marker_size", "corner_sigma_px", "max_reprojection_error",
+                       "min_side_px", "refine_corners", "second_pass")
+
+
+def _range(low, high):
+    return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+
+
+class ArtagDetectorNode(Node):
+    def __init__(self):
+        super().__init__("artag_detector")
+        self._declare_parameters()
+        dictionary = self._param("dictionary")
+        if dictionary not in DICTIONARY_NAMES:
+            raise ValueError(f"parameter dictionary must be one of {', '.join(DICTIONARY_NAMES)}"
+                             f", got {dictionary!r}")
+        from abp_description.kinematics import RobotKinematics
+        urdf = self._param("urdf_file") or None
+        self.kinematics = RobotKinematics(urdf)
+        self.base_frame = self._param("base_frame")
+        self.camera_frame = self._param("camera_frame")
+        if not self.kinematics.has_frame(self.camera_frame):
+            raise ValueError(f"parameter camera_frame: no frame {self.camera_frame!r} in "
+                             f"{self.kinematics.urdf_path}")
+        self._config = {name: self._param(name) for name in DETECTOR_PARAMETERS}
+        self.detector = None                 # built at the first camera_info
+        self._camera_key = None
+        self._camera_size = None
+        self._joints = None
+        self._warned_frames = set()
+        self._pub = self.create_publisher(TagDetectionArray, "/abp/tag_detections", RELIABLE)
+        self.create_subscription(Image, "/camera/image_raw", self._on_image,
+                                 qos_profile_sensor_data)
+        self.create_subscription(CameraInfo, "/camera/camera_info", self._on_camera_info,
+                                 qos_profile_sensor_data)
+        self.create_subscription(JointState, "/joint_states", self._on_joint_state,
+                                 qos_profile_sensor_data)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.get_logger().info(
+            f"detecting {dictionary} tags of {self._config['marker_size']} m; poses in "
+            f"{self.base_frame} via {self.camera_frame} forward kinematics")
+
+    # -- parameters ---------------------------------------------------------------
+    def _declare_parameters(self):
+        def declare(name, default, description, **extra):
+            self.declare_parameter(name, default, ParameterDescriptor(
+                description=description, **extra))
+
+        declare("dictionary", "DICT_4X4_50", "ArUco dictionary (OpenCV name).", read_only=True)
+        declare("marker_size", 0.08, "Edge of a tag's black square, m.",
+                floating_point_range=_range(0.005, 2.0))
+        declare("base_frame", "base_link", "Frame of the published poses (robot base).",
+                read_only=True)
+        declare("camera_frame", "camera_optical_frame",
+                "URDF frame of the camera, used when the image's frame_id is not in the URDF.",
+                read_only=True)
+        declare("urdf_file", "", "URDF for the kinematics; empty = abp_description's.",
+                read_only=True)
+        declare("corner_sigma_px", 0.08, "Base corner noise of the covariance model, px.",
+                floating_point_range=_range(0.001, 10.0))
+        declare("max_reprojection_error", 2.0, "Drop poses with a larger RMS error, px.",
+                floating_point_range=_range(0.01, 100.0))
+        declare("min_side_px", 6.0, "Drop tags smaller than this in the image, px.",
+                floating_point_range=_range(1.0, 1000.0))
+        declare("refine_corners", True, "Edge-fit sub-pixel corners (else OpenCV SUBPIX).")
+        declare("second_pass", True, "Decode candidates that ArUco rejected, after refining.")
+
+    def _param(self, name):
+        return self.get_parameter(name).value
+
+    def _build_detector(self, config, camera_matrix, dist_coeffs):
+        return TagDetector(camera_matrix, dist_coeffs, dictionary=self._param("dictionary"),
+                           camera_frame=self.camera_frame, **config)
+
+    def _on_set_parameters(self, params):
+        changes = {p.name: p.value for p in params if p.name in DETECTOR_PARAMETERS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        config = dict(self._config, **changes)
+        try:
+            if self.detector is not None:
+                detector = self._build_detector(config, self.detector.camera_matrix,
+                                                self.detector.dist_coeffs)
+            else:
+                detector = None
+                self._build_detector(config, np.diag([500.0, 500.0, 1.0]), None)
+        except ValueError as error:
+            return SetParametersResult(successful=False, reason=str(error))
+        self._config = config
+        if detector is not None:
+            self.detector = detector
+        return SetParametersResult(successful=True)
+
+    # -- callbacks ----------------------------------------------------------------
+    def _on_camera_info(self, msg: CameraInfo):
+        k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+        d = np.asarray(msg.d, dtype=np.float64)
+        key = (tuple(k.ravel()), tuple(d), msg.distortion_model)
+        if key == self._camera_key:
+            return
+        if msg.distortion_model not in DISTORTION_MODELS:
+            self.get_logger().warning(
+                f"camera_info distortion model {msg.distortion_model!r} is not supported "
+                f"(use {', '.join(m for m in DISTORTION_MODELS if m)}); images skipped",
+                throttle_duration_sec=THROTTLE_S)
+            return
+        try:
+            self.detector = self._build_detector(self._config, k, d if d.size else None)
+        except ValueError as error:
+            self.get_logger().warning(f"camera_info refused: {error}; images skipped",
+                                      throttle_duration_sec=THROTTLE_S)
+            return
+        self._camera_key = key
+        self._camera_size = (int(msg.width), int(msg.height))
+
+    def _on_joint_state(self, msg: JointState):
+        if len(msg.name) != len(msg.position):
+            self.get_logger().warning("joint_states with names and positions of different "
+                                      "lengths ignored", throttle_duration_sec=THROTTLE_S)
+            return
+        joints = dict(zip(msg.name, msg.position))
+        self._joints = self.kinematics.q_from_mapping(
+            joints, default=self._joints if self._joints is not None else None)
+
+    def _on_image(self, msg: Image):
+        if self.detector is None:
+            self.get_logger().warning("no valid camera_info on /camera/camera_info yet: "
+                                      "image skipped", throttle_duration_sec=THROTTLE_S)
+            return
+        w, h = self._camera_size
+        if w and h and (msg.width != w or msg.height != h):
+            self.get_logger().warning(
+                f"image is {msg.width}x{msg.height} but camera_info is {w}x{h}: skipped",
+                throttle_duration_sec=THROTTLE_S)
+            return
+        try:
+            gray = image_msg_to_gray(msg)
+        except ImageEncodingError as error:
+            self.get_logger().error(f"image skipped: {error}", throttle_duration_sec=THROTTLE_S)
+            return
+        result = self.detector.detect(gray)
+        for dropped in result.dropped:
+            self.get_logger().debug(f"tag {dropped.tag_id} dropped: {dropped.reason}")
+        frame = self._camera_frame_of(msg.header.frame_id)
+        if self._joints is not None:
+            result = result.in_frame(self.kinematics.frame_pose(self._joints, frame),
+                                     self.base_frame)
+            out_frame = self.base_frame
+        else:
+            self.get_logger().warning("no /joint_states yet: detections published in the "
+                                      "camera frame", throttle_duration_sec=THROTTLE_S)
+            out_frame = msg.header.frame_id or frame
+        self._pub.publish(self._to_msg(result, msg.header, out_frame))
+
+    def _camera_frame_of(self, frame_id):
+        if frame_id and self.kinematics.has_frame(frame_id):
+            return frame_id
+        if frame_id not in self._warned_frames:
+            self._warned_frames.add(frame_id)
+            self.get_logger().warning(f"image frame {frame_id!r} is not in the URDF; using "
+                                      f"{self.camera_frame}")
+        return self.camera_frame
+
+    @staticmethod
+    def _to_msg(result, header, frame):
+        out = TagDetectionArray()
+        out.header.stamp = header.stamp
+        out.header.frame_id = frame
+        out.camera_frame_id = header.frame_id
+        for det in result.detections:
+            msg = TagDetection()
+            msg.id = int(det.tag_id)
+            p = msg.pose.pose
+            p.position.x, p.position.y, p.position.z = (float(v) for v in det.pose[:3, 3])
+            qx, qy, qz, qw = rotation_to_quaternion(det.pose[:3, :3])
+            p.orientation.x, p.orientation.y = float(qx), float(qy)
+            p.orientation.z, p.orientation.w = float(qz), float(qw)
+            msg.pose.covariance = [float(v) for v in det.covariance.ravel()]
+            msg.corners = [Point32(x=float(x), y=float(y), z=0.0) for x, y in det.corners]
+            msg.marker_size = float(det.marker_size)
+            msg.reprojection_error = float(det.reprojection_error)
+            msg.confidence = float(det.confidence)
+            out.detections.append(msg)
+        return out
+
+
+def main(args=None):
+    rclpy.init(args=args)
+    try:
+        node = ArtagDetectorNode()
+    except (ValueError, FileNotFoundError,
+            rclpy.exceptions.InvalidParameterValueException) as error:
+        print(f"[artag_detector] configuration error: {error}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

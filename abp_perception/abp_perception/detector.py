@@ -1,0 +1,401 @@
+"""ArUco tag detection with poses and covariances (plain NumPy + OpenCV, no rclpy).
+
+Pipeline per grey image (``TagDetector.detect``):
+
+1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off and bit
+   sampling tuned for small, blurred tags (8 px per cell, 30 % cell margin ignored;
+   see ``TagDetector.default_parameters``).
+2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
+   ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
+3. Second pass: candidates ArUco rejected are refined the same way and decoded again
+   (``corners.decode_quads``, no error correction, black border and white quiet zone
+   required). Far, foreshortened tags are often rejected only because their integer
+   contour corners sample the bits badly.
+4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
+   points in its documented order (top-left, top-right, bottom-right, bottom-left at
+   (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
+   tag frame has x right, y up and z out of the tag face. The lower-error of the two
+   IPPE solutions is used; the other one sizes the tilt uncertainty (below).
+5. Covariance and confidence (below). Degenerate or implausible detections are
+   dropped with a reason (``DetectionResult.dropped``).
+
+Covariance model (6 x 6, order x, y, z, rot x, rot y, rot z, axes of the output frame;
+rotations as a small rotation vector). With ``f`` the focal length (px), ``s`` the
+marker size, ``t`` the tag centre in the camera frame, range ``r = |t|``, ``side`` the
+marker's apparent side in the image (square root of its image area: foreshortening
+included) and the corner noise ``sigma = sqrt(corner_sigma_px^2 + (40 px^2 / side^2)^2
++ rms^2)`` (``rms``: reprojection error, px; the middle term is the edge fit's loss of
+accuracy on small tags, calibrated on the sim bridge's renders):
+
+- position: ``sigma_lateral = r * sigma / (2 f)`` across the line of sight (the centre
+  averages four corners) and ``sigma_range = r * sigma / side`` along it (the range
+  comes from the apparent size); so it grows with distance (linearly across, ~r^2
+  along the ray) and with the reprojection error;
+- orientation, in the tag frame: tilt about the tag's x and y axes
+  ``sigma_tilt = sigma * f / side^2`` (perspective differences across the marker,
+  which vanish as the tag shrinks), plus, when the second IPPE solution is nearly as
+  good (best / second reprojection error > ``ambiguity_ratio``, default 0.7: the
+  tilt ambiguity of small, far tags), half the angle between the two solutions;
+  roll about the normal ``sigma_roll = sigma / side``; rotated into the output frame.
+  Position-orientation cross terms are 0. Floors of 0.1 mm and 1 mrad keep it positive
+  definite. On the renders the range errors are ~1 sigma at 2 m (median |z| 0.9).
+
+Confidence in [0, 1]: ``exp(-rms^2 / 2) * min(1, side / 20 px)``.
+
+Images are converted from ``sensor_msgs/Image``-shaped data without cv_bridge
+(``image_to_gray``): mono8 / 8UC1, bgr8, rgb8, bgra8, rgba8 (8UC3 and 8UC4 are taken
+as BGR / BGRA, OpenCV's order). Anything else raises ``ImageEncodingError``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from .corners import decode_quads, quad_areas, refine_quads
+
+__all__ = [
+    "ImageEncodingError", "image_to_gray", "image_msg_to_gray", "SUPPORTED_ENCODINGS",
+    "DICTIONARY_NAMES", "dictionary_id", "marker_object_points", "Detection",
+    "DroppedDetection", "DetectionResult", "TagDetector", "transform_covariance",
+    "pose_covariance",
+]
+
+# encoding -> (channels, cv2 conversion to grey or None)
+_ENCODINGS = {
+    "mono8": (1, None),
+    "8UC1": (1, None),
+    "bgr8": (3, cv2.COLOR_BGR2GRAY),
+    "8UC3": (3, cv2.COLOR_BGR2GRAY),
+    "rgb8": (3, cv2.COLOR_RGB2GRAY),
+    "bgra8": (4, cv2.COLOR_BGRA2GRAY),
+    "8UC4": (4, cv2.COLOR_BGRA2GRAY),
+    "rgba8": (4, cv2.COLOR_RGBA2GRAY),
+}
+SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
+
+DICTIONARY_NAMES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+
+_FULL_CONFIDENCE_SIDE_PX = 20.0
+_POSITION_FLOOR = 1e-4       # m
+# Corner noise that grows as tags shrink: the edge fit of a marker only ~15 px across
+# sees 2-3 px per cell; 40 / side^2 px (0.16 px at 16 px) matches the renders' errors.
+SMALL_TAG_PX2 = 40.0
+MAX_CANDIDATES = 24          # rejected contours re-examined per image (largest first)
+_ROTATION_FLOOR = 1e-3       # rad
+
+
+class ImageEncodingError(ValueError):
+    """The image cannot be converted (unsupported encoding or inconsistent buffer)."""
+
+
+def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
+    """A (height, width) uint8 grey image from sensor_msgs/Image fields (no copy for mono8)."""
+    if encoding not in _ENCODINGS:
+        raise ImageEncodingError(
+            f"unsupported image encoding {encoding!r}; supported: {', '.join(SUPPORTED_ENCODINGS)}")
+    channels, conversion = _ENCODINGS[encoding]
+    height, width, step = int(height), int(width), int(step)
+    if height <= 0 or width <= 0:
+        raise ImageEncodingError(f"empty image ({width} x {height})")
+    if step < width * channels:
+        raise ImageEncodingError(
+            f"step {step} is smaller than width x channels = {width * channels} for {encoding}")
+    try:
+        buf = np.frombuffer(memoryview(data), dtype=np.uint8)
+    except TypeError:
+        buf = np.asarray(data, dtype=np.uint8).reshape(-1)
+    if buf.size < step * height:
+        raise ImageEncodingError(
+            f"image data has {buf.size} bytes, expected step x height = {step * height}")
+    rows = buf[:step * height].reshape(height, step)[:, :width * channels]
+    if channels == 1:
+        return rows
+    img = np.ascontiguousarray(rows).reshape(height, width, channels)
+    return cv2.cvtColor(img, conversion)
+
+
+def image_msg_to_gray(msg) -> np.ndarray:
+    """``image_to_gray`` of anything with sensor_msgs/Image's fields."""
+    return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+
+
+def dictionary_id(name) -> int:
+    """OpenCV id of a predefined ArUco dictionary given by name (e.g. 'DICT_4X4_50')."""
+    if isinstance(name, str) and name in DICTIONARY_NAMES:
+        return int(getattr(cv2.aruco, name))
+    raise ValueError(f"unknown ArUco dictionary {name!r}; expected one of "
+                     f"{', '.join(DICTIONARY_NAMES)}")
+
+
+def marker_object_points(marker_size: float) -> np.ndarray:
+    """SOLVEPNP_IPPE_SQUARE's documented object points = ArUco corner order (4, 3)."""
+    h = 0.5 * float(marker_size)
+    return np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
+
+
+@dataclass
+class Detection:
+    """One tag: pose of its centre (z out of the face) in `frame`, with covariance."""
+
+    tag_id: int
+    corners: np.ndarray            # (4, 2) px, ArUco order
+    pose: np.ndarray               # (4, 4) tag -> frame
+    covariance: np.ndarray         # (6, 6) x y z rx ry rz, axes of `frame`
+    reprojection_error: float      # RMS, px
+    confidence: float
+    side_px: float                 # apparent side (sqrt of the image area), px
+    marker_size: float             # m
+    frame: str = "camera"
+    ambiguity: float = 0.0         # best / second-best IPPE reprojection error (0..1)
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.pose[:3, 3]
+
+    @property
+    def normal(self) -> np.ndarray:
+        return self.pose[:3, 2]
+
+    def transformed(self, transform, frame: str) -> "Detection":
+        """This detection expressed in another frame; `transform` maps camera -> frame."""
+        transform = np.asarray(transform, dtype=np.float64)
+        return replace(self, pose=transform @ self.pose,
+                       covariance=transform_covariance(self.covariance, transform[:3, :3]),
+                       frame=frame)
+
+
+@dataclass
+class DroppedDetection:
+    tag_id: int                    # -1 when the marker was never identified
+    reason: str
+    corners: np.ndarray = field(default=None, repr=False)
+
+
+@dataclass
+class DetectionResult:
+    detections: list
+    dropped: list
+    second_pass: int = 0           # detections recovered from rejected candidates
+
+    def in_frame(self, transform, frame: str) -> "DetectionResult":
+        return DetectionResult([d.transformed(transform, frame) for d in self.detections],
+                               list(self.dropped), self.second_pass)
+
+
+def _inside_any(points, quads) -> np.ndarray:
+    """Whether each point (P, 2) lies inside any convex quad (Q, 4, 2) (either winding)."""
+    a = quads[None, :, :, :]                                   # (1, Q, 4, 2)
+    b = quads[None, :, [1, 2, 3, 0], :]
+    p = points[:, None, None, :]                               # (P, 1, 1, 2)
+    cross = (b[..., 0] - a[..., 0]) * (p[..., 1] - a[..., 1]) \
+        - (b[..., 1] - a[..., 1]) * (p[..., 0] - a[..., 0])    # (P, Q, 4)
+    inside = (cross >= 0).all(axis=2) | (cross <= 0).all(axis=2)
+    return inside.any(axis=1)
+
+
+def transform_covariance(covariance, rotation) -> np.ndarray:
+    """Rotate a 6 x 6 (position, rotation-vector) covariance by `rotation` (3 x 3)."""
+    big = np.zeros((6, 6))
+    big[:3, :3] = big[3:, 3:] = rotation
+    return big @ covariance @ big.T
+
+
+def pose_covariance(rotation, translation, side_px, rms_px, focal_px, corner_sigma_px,
+                    ambiguity_angle=0.0) -> np.ndarray:
+    """The 6 x 6 covariance model of the module docstring, in the camera frame."""
+    t = np.asarray(translation, dtype=np.float64)
+    rng = float(np.linalg.norm(t))
+    ray = t / max(rng, 1e-9)
+    side = max(float(side_px), 1.0)
+    sigma = float(np.sqrt(corner_sigma_px ** 2 + (SMALL_TAG_PX2 / side ** 2) ** 2 + rms_px ** 2))
+    s_lat = max(rng * sigma / (2.0 * focal_px), _POSITION_FLOOR)
+    s_rng = max(rng * sigma / side, _POSITION_FLOOR)
+    pos = s_lat ** 2 * (np.eye(3) - np.outer(ray, ray)) + s_rng ** 2 * np.outer(ray, ray)
+    s_tilt = min(np.hypot(sigma * focal_px / side ** 2, 0.5 * ambiguity_angle), np.pi / 2)
+    s_tilt = max(s_tilt, _ROTATION_FLOOR)
+    s_roll = max(sigma / side, _ROTATION_FLOOR)
+    rot_tag = np.diag([s_tilt ** 2, s_tilt ** 2, s_roll ** 2])
+    cov = np.zeros((6, 6))
+    cov[:3, :3] = pos
+    cov[3:, 3:] = rotation @ rot_tag @ rotation.T
+    return cov
+
+
+class TagDetector:
+    """ArUco detection + IPPE_SQUARE poses with covariances, in the camera optical frame.
+
+    >>> det = TagDetector(K, dist_coeffs=None, dictionary="DICT_4X4_50", marker_size=0.08)
+    >>> result = det.detect(gray)            # DetectionResult
+    >>> in_base = result.in_frame(T_base_camera, "base_link")
+    """
+
+    def __init__(self, camera_matrix, dist_coeffs=None, dictionary="DICT_4X4_50",
+                 marker_size: float = 0.08, refine_corners: bool = True,
+                 second_pass: bool = True, corner_sigma_px: float = 0.08,
+                 max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
+                 ambiguity_ratio: float = 0.7, camera_frame: str = "camera"):
+        if not (np.isfinite(marker_size) and marker_size > 0):
+            raise ValueError(f"marker_size must be > 0 m, got {marker_size}")
+        if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
+            raise ValueError(f"corner_sigma_px must be > 0, got {corner_sigma_px}")
+        if not max_reprojection_error > 0:
+            raise ValueError(f"max_reprojection_error must be > 0 px, got "
+                             f"{max_reprojection_error}")
+        self.dictionary_name = dictionary if isinstance(dictionary, str) else str(dictionary)
+        self.dictionary = cv2.aruco.getPredefinedDictionary(
+            dictionary_id(dictionary) if isinstance(dictionary, str) else int(dictionary))
+        self.marker_size = float(marker_size)
+        self.refine_corners = bool(refine_corners)
+        self.second_pass = bool(second_pass)
+        self.corner_sigma_px = float(corner_sigma_px)
+        self.max_reprojection_error = float(max_reprojection_error)
+        self.min_side_px = float(min_side_px)
+        self.ambiguity_ratio = float(ambiguity_ratio)
+        self.camera_frame = camera_frame
+        self.object_points = marker_object_points(self.marker_size)
+        self.params = self.default_parameters(refine_corners=self.refine_corners)
+        self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
+        self.set_camera(camera_matrix, dist_coeffs)
+
+    @staticmethod
+    def default_parameters(refine_corners: bool = True) -> "cv2.aruco.DetectorParameters":
+        """ArUco parameters: defaults except for finer bit sampling of small, blurred tags,
+        one more threshold window and less candidate grouping (below).
+
+        Corner refinement is our own edge fit (refine_corners) or SUBPIX without it.
+        """
+        p = cv2.aruco.DetectorParameters()
+        p.cornerRefinementMethod = (cv2.aruco.CORNER_REFINE_NONE if refine_corners
+                                    else cv2.aruco.CORNER_REFINE_SUBPIX)
+        p.perspectiveRemovePixelPerCell = 8
+        p.perspectiveRemoveIgnoredMarginPerCell = 0.3
+        # Threshold windows 3, 23, 43, 63 px (default 3, 13, 23): the large ones find
+        # markers on dim, shaded, oblique faces; as many passes as the default + 1.
+        p.adaptiveThreshWinSizeMax = 63
+        p.adaptiveThreshWinSizeStep = 20
+        # Keep a marker's own contour apart from its white quiet zone's outer contour:
+        # grouped (default 0.125), the outer one may win and then be dropped at the
+        # image border, losing the marker.
+        p.minMarkerDistanceRate = 0.05
+        return p
+
+    def set_camera(self, camera_matrix, dist_coeffs=None):
+        """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None)."""
+        k = np.asarray(camera_matrix, dtype=np.float64).reshape(3, 3)
+        if not (np.isfinite(k).all() and k[0, 0] > 0 and k[1, 1] > 0):
+            raise ValueError("camera matrix must be finite with positive focal lengths")
+        d = None if dist_coeffs is None else np.asarray(dist_coeffs, np.float64).reshape(-1)
+        if d is not None and (d.size == 0 or not np.any(d)):
+            d = None
+        if d is not None and (d.size not in (4, 5, 8, 12, 14) or not np.isfinite(d).all()):
+            raise ValueError(f"distortion needs 4, 5, 8, 12 or 14 finite coefficients, "
+                             f"got {d.size}")
+        self.camera_matrix = k
+        self.dist_coeffs = d
+        self.focal_px = 0.5 * (k[0, 0] + k[1, 1])
+
+    # -- detection ------------------------------------------------------------------------
+    def detect(self, gray) -> DetectionResult:
+        """Detect tags in a grey uint8 image; poses in the camera optical frame."""
+        gray = np.asarray(gray)
+        if gray.ndim != 2 or gray.dtype != np.uint8:
+            raise ValueError(f"expected a 2-D uint8 grey image, got {gray.dtype} {gray.shape}")
+        corners, ids, rejected = self.aruco.detectMarkers(gray)
+        quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
+        tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
+        cand = np.zeros((0, 4, 2))
+        if self.second_pass and rejected is not None and len(rejected):
+            cand = self._candidates(rejected, quads)
+        if self.refine_corners and (len(tag_ids) or len(cand)):
+            # One batch for the accepted markers and the second-pass candidates.
+            refined, ok = refine_quads(gray, np.concatenate([quads, cand]))
+            quads = refined[:len(tag_ids)]
+            cand = refined[len(tag_ids):][ok[len(tag_ids):]]
+        recovered = 0
+        if len(cand):
+            extra_quads, extra_ids = self._decode_candidates(gray, cand)
+            recovered = len(extra_ids)
+            if recovered:
+                quads = np.concatenate([quads, extra_quads])
+                tag_ids += extra_ids
+        detections, dropped = [], []
+        for tag_id, quad in zip(tag_ids, quads):
+            det = self._pose(tag_id, quad)
+            if isinstance(det, DroppedDetection):
+                dropped.append(det)
+            else:
+                detections.append(det)
+        return DetectionResult(detections, dropped, recovered)
+
+    def _candidates(self, rejected, accepted):
+        """Rejected contours worth a second look: large enough, not inside an accepted
+        marker (its inner contours), at most MAX_CANDIDATES, largest first."""
+        cand = np.array([c.reshape(4, 2) for c in rejected], dtype=np.float64)
+        area = np.abs(quad_areas(cand))
+        keep = area >= self.min_side_px ** 2
+        if accepted.shape[0] and keep.any():
+            keep &= ~_inside_any(cand.mean(axis=1), accepted)
+        idx = np.flatnonzero(keep)
+        idx = idx[np.argsort(-area[idx], kind="stable")][:MAX_CANDIDATES]
+        return cand[idx]
+
+    def _decode_candidates(self, gray, cand):
+        # Screen order: clockwise, as ArUco orders markers.
+        flip = quad_areas(cand) < 0
+        cand = cand.copy()
+        cand[flip] = cand[flip][:, ::-1]
+        quads, found = [], []
+        for quad, res in zip(cand, decode_quads(gray, cand, self.dictionary)):
+            if res is None:
+                continue
+            if quads and _inside_any(quad.mean(axis=0)[None], np.array(quads))[0]:
+                continue                                   # same marker, another contour
+            quads.append(np.roll(quad, res[1], axis=0))
+            found.append(res[0])
+        return np.array(quads).reshape(-1, 4, 2), found
+
+    def _pose(self, tag_id, quad):
+        if not np.isfinite(quad).all():
+            return DroppedDetection(tag_id, "non-finite corners", quad)
+        area = float(quad_areas(quad[None])[0])
+        side = float(np.sqrt(abs(area)))
+        if side < self.min_side_px:
+            return DroppedDetection(
+                tag_id, f"degenerate quad: side {side:.1f} px < {self.min_side_px} px", quad)
+        if area <= 0 or not cv2.isContourConvex(quad.astype(np.float32).reshape(-1, 1, 2)):
+            return DroppedDetection(tag_id, "non-convex or mirrored quad", quad)
+        try:
+            n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+                self.object_points, quad, self.camera_matrix, self.dist_coeffs,
+                flags=cv2.SOLVEPNP_IPPE_SQUARE)
+        except cv2.error as error:
+            return DroppedDetection(tag_id, f"solvePnP failed: {error.msg}", quad)
+        if not n:
+            return DroppedDetection(tag_id, "solvePnP found no pose", quad)
+        errors = np.asarray(errors, dtype=np.float64).reshape(-1)
+        rvec, tvec = np.asarray(rvecs[0]).reshape(3), np.asarray(tvecs[0]).reshape(3)
+        rms = float(errors[0])
+        if not (np.isfinite(rvec).all() and np.isfinite(tvec).all() and np.isfinite(rms)):
+            return DroppedDetection(tag_id, "non-finite pose", quad)
+        if tvec[2] <= 0:
+            return DroppedDetection(tag_id, "pose behind the camera", quad)
+        if rms > self.max_reprojection_error:
+            return DroppedDetection(
+                tag_id, f"reprojection error {rms:.2f} px > {self.max_reprojection_error} px",
+                quad)
+        rot, _ = cv2.Rodrigues(rvec)
+        ambiguity, angle = 0.0, 0.0
+        if n > 1 and np.isfinite(errors[1]) and errors[1] > 0:
+            ambiguity = float(min(1.0, errors[0] / errors[1]))
+            if ambiguity > self.ambiguity_ratio:
+                rot2, _ = cv2.Rodrigues(np.asarray(rvecs[1]).reshape(3))
+                angle = float(np.arccos(np.clip(rot[:, 2] @ rot2[:, 2], -1.0, 1.0)))
+        pose = np.eye(4)
+        pose[:3, :3], pose[:3, 3] = rot, tvec
+        cov = pose_covariance(rot, tvec, side, rms, self.focal_px, self.corner_sigma_px, angle)
+        confidence = float(np.exp(-0.5 * rms ** 2) * min(1.0, side / _FULL_CONFIDENCE_SIDE_PX))
+        return Detection(tag_id, quad.copy(), pose, cov, rms, confidence, side,
+                         self.marker_size, self.camera_frame, ambiguity)

@@ -1,0 +1,239 @@
+"""The sim_bridge node's parameters, their checks, and what they build (plain Python, no
+rclpy): one table (`PARAMETERS`) the node declares from, and `build(values)` which turns a
+{name: value} mapping into the simulation's pieces or raises ValueError naming the
+parameter that is wrong.
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .contact import ContactParams
+from .renderer import ImageEffects
+from .scenario import (
+    MODEL_SETS,
+    HiddenModel,
+    choose_hidden_model,
+    initial_cube,
+    make_distractors,
+)
+from .sim_world import SimSettings
+from .world import Cube, Failures
+
+BOOL, INT, DOUBLE, STRING, INT_ARRAY, DOUBLE_ARRAY = (
+    'bool', 'int', 'double', 'string', 'int[]', 'double[]')
+
+
+@dataclass(frozen=True)
+class Param:
+    name: str
+    kind: str
+    default: object          # None: an array parameter that starts unset (= empty)
+    description: str
+    range: tuple | None = None  # (low, high) inclusive, for int / double
+
+    def check(self, value):
+        if self.range is not None and value is not None:
+            low, high = self.range
+            if not low <= value <= high:
+                raise ValueError(f'{self.name} must be in [{low}, {high}], got {value}')
+
+
+PARAMETERS = (
+    # -- time ---------------------------------------------------------------------------
+    Param('rate', DOUBLE, 50.0, 'Simulation tick rate, Hz of simulation time: base and joint '
+          'integration, contacts, /joint_states, /odom and /clock.', (1.0, 1000.0)),
+    Param('speedup', DOUBLE, 1.0, 'Simulation time per wall-clock time: 1 = real time, 10 = '
+          'ten times faster (0 < speedup <= 100). Takes effect at once. If the machine cannot '
+          'keep up, simulation time runs slower (never inconsistently).', (0.0, 100.0)),
+    Param('publish_clock', BOOL, True, 'Publish /clock (other nodes then run with '
+          'use_sim_time:=true) and stamp everything with simulation time starting at 0. '
+          'false: stamps are wall-clock time at start + simulation time (no /clock).'),
+    Param('camera_rate', DOUBLE, 10.0, 'Camera frame rate, Hz of simulation time '
+          '(0 = no camera); at most `rate`.', (0.0, 1000.0)),
+    Param('ground_truth_rate', DOUBLE, 5.0, 'Rate of /abp/sim/ground_truth, Hz of simulation '
+          'time (it is also published at once after every contact event and reset; 0 = only '
+          'then).', (0.0, 1000.0)),
+    Param('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for this '
+          'long (s of simulation time).', (0.001, 60.0)),
+    # -- the hidden cube ------------------------------------------------------------------
+    Param('face_tags', INT_ARRAY, None, 'Explicit hidden cube: tag id on each body face '
+          '(+x -x +y -y +z -z), 6 distinct ids 0..49; empty = take it from the model set.'),
+    Param('mass_index', INT, 0, 'With face_tags: 0 = uniform mass, 1 + f = heavy towards '
+          'body face f.', (0, 6)),
+    Param('model_set', STRING, 'robot', 'Model set the hidden cube is drawn from when '
+          'face_tags is empty (as the belief node builds it): ' + ', '.join(MODEL_SETS) + '.'),
+    Param('model_set_size', INT, 30, 'Visual cubes of model_set=random.', (1, 100000)),
+    Param('n_tags', INT, 7, 'Tags of the population (ArUco ids 0..n_tags-1).', (6, 50)),
+    Param('seed', INT, 0, 'Seed of the robot and random model sets (as the belief node).',
+          (0, 2**31 - 1)),
+    Param('model_file', STRING, '', 'Model-set file (abp_belief `models --out`); overrides '
+          'model_set.'),
+    Param('model_index', INT, -1, 'Index of the hidden model in the model set; -1 = drawn '
+          'with cube_seed.', (-1, 10**7)),
+    Param('cube_seed', INT, 0, 'Seed of the random choice of the hidden model.',
+          (0, 2**31 - 1)),
+    Param('cube_size', DOUBLE, 0.10, 'Cube edge, m.', (0.02, 0.5)),
+    Param('tag_size', DOUBLE, 0.08, 'Tag (black square) edge, m; smaller than cube_size.',
+          (0.005, 0.5)),
+    Param('mass_offset', DOUBLE, 0.025, 'Centre of mass offset towards the heavy face, m '
+          '(less than half the edge).', (0.0, 0.25)),
+    Param('cube_x', DOUBLE, 0.40, 'Initial cube centre x in odom, m (the robot starts at the '
+          'origin facing +x).', (-100.0, 100.0)),
+    Param('cube_y', DOUBLE, 0.0, 'Initial cube centre y in odom, m.', (-100.0, 100.0)),
+    Param('cube_yaw', DOUBLE, 0.0, 'Initial cube yaw about the vertical, rad (applied after '
+          'cube_up_face).', (-10.0, 10.0)),
+    Param('cube_up_face', INT, 4, 'Initial body face up (0:+x 1:-x 2:+y 3:-y 4:+z 5:-z), with '
+          "MODEL.md's reference rotation R_UP.", (0, 5)),
+    # -- camera ---------------------------------------------------------------------------
+    Param('camera_encoding', STRING, 'mono8', 'Image encoding: mono8 or bgr8.'),
+    Param('camera_noise_std', DOUBLE, 1.0, 'Gaussian image noise, grey levels.', (0.0, 100.0)),
+    Param('camera_blur_sigma', DOUBLE, 0.5, 'Gaussian blur sigma, pixels.', (0.0, 20.0)),
+    Param('camera_gain', DOUBLE, 1.0, 'Exposure gain (multiplies intensities).', (0.05, 20.0)),
+    Param('camera_supersample', INT, 4, 'Renderer supersampling of face outlines '
+          '(1 = fastest).', (1, 8)),
+    Param('camera_noise_bank', INT, 8, 'Image noise from this many pre-drawn noise frames '
+          '(a random window of one each frame; much faster); 0 = fresh Gaussian noise every '
+          'frame.', (0, 64)),
+    Param('distractors', INT, 0, 'Flat tags on the floor around the cube that are not on '
+          'it (ids n_tags..49 not on the cube).', (0, 20)),
+    Param('distractor_seed', INT, 0, 'Seed of the distractors.', (0, 2**31 - 1)),
+    Param('look_at_cube', BOOL, True, 'Start with the head pan/tilt pointing the camera at '
+          'the cube (ignored when initial_positions is given).'),
+    Param('initial_positions', DOUBLE_ARRAY, None, 'Initial joint positions, 13 values in '
+          'URDF joint order (as /joint_states); empty = all zero (arms hanging).'),
+    # -- contacts and failures ------------------------------------------------------------
+    Param('hand_radius', DOUBLE, 0.03, 'Radius of the hand balls for contacts, m.',
+          (0.005, 0.2)),
+    Param('p_slip_grasp', DOUBLE, 0.0, 'Probability that a grasp slips (LIFT/FLIP: no '
+          'change).', (0.0, 1.0)),
+    Param('p_missed_push', DOUBLE, 0.0, 'Probability that a push meets nothing (no change).',
+          (0.0, 1.0)),
+    Param('p_push_neighbour', DOUBLE, 0.0, 'Probability that a push pivots the other way '
+          '(a sliding push pivots either way).', (0.0, 1.0)),
+    Param('orbit_odometry_noise', DOUBLE_ARRAY, [0.0, 0.0], '[sigma_m, sigma_rad]: at the end '
+          'of every base motion the true base pose moves by N(0, sigma_m^2) in x and y and '
+          'N(0, sigma_rad^2) in yaw, unseen by /odom.'),
+    Param('failure_seed', INT, 0, 'Seed of the failure draws, odometry noise and image noise.',
+          (0, 2**31 - 1)),
+)
+PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
+_BY_NAME = {p.name: p for p in PARAMETERS}
+# Parameters that act at once; all others take effect at the next ~/reset_world.
+LIVE_PARAMETERS = frozenset({'speedup'})
+
+
+def defaults():
+    return {p.name: p.default for p in PARAMETERS}
+
+
+@dataclass
+class CameraConfig:
+    rate: float
+    encoding: str
+    effects: ImageEffects
+    supersample: int
+    noise_bank: int
+    tag_size: float
+    cube_size: float
+
+
+@dataclass
+class SimBridgeConfig:
+    values: dict                 # the parameter values it was built from
+    hidden: HiddenModel
+    cube: Cube
+    settings: SimSettings
+    failures: Failures
+    camera: CameraConfig
+    distractors: list = field(default_factory=list)
+    speedup: float = 1.0
+    publish_clock: bool = True
+    ground_truth_rate: float = 5.0
+    failure_seed: int = 0
+    look_at_cube: bool = True
+
+
+def _array(value):
+    return [] if value is None else list(value)
+
+
+def check_speedup(value):
+    value = float(value)
+    if not (np.isfinite(value) and 0.0 < value <= 100.0):
+        raise ValueError(f'speedup must be > 0 and <= 100, got {value}')
+    return value
+
+
+def build(values):
+    """SimBridgeConfig from parameter values (missing names take their defaults).
+    Raises ValueError with the offending parameter's name."""
+    v = defaults()
+    unknown = set(values) - set(v)
+    if unknown:
+        raise ValueError(f'unknown parameters: {sorted(unknown)}')
+    v.update(values)
+    for name, value in v.items():
+        _BY_NAME[name].check(value)
+    rate = float(v['rate'])
+    speedup = check_speedup(v['speedup'])
+    camera_rate = float(v['camera_rate'])
+    if camera_rate > rate:
+        raise ValueError(f'camera_rate ({camera_rate} Hz) must not exceed rate ({rate} Hz)')
+    gt_rate = float(v['ground_truth_rate'])
+    if gt_rate > rate:
+        raise ValueError(f'ground_truth_rate ({gt_rate} Hz) must not exceed rate ({rate} Hz)')
+    if v['camera_encoding'] not in ('mono8', 'bgr8'):
+        raise ValueError(f"camera_encoding must be 'mono8' or 'bgr8', got "
+                         f"{v['camera_encoding']!r}")
+    if v['model_set'] not in MODEL_SETS:
+        raise ValueError(f"model_set must be one of {', '.join(MODEL_SETS)}, got "
+                         f"{v['model_set']!r}")
+    cube_size, tag_size = float(v['cube_size']), float(v['tag_size'])
+    if not tag_size < cube_size:
+        raise ValueError(f'tag_size ({tag_size} m) must be smaller than cube_size '
+                         f'({cube_size} m)')
+    if not float(v['mass_offset']) < cube_size / 2:
+        raise ValueError(f"mass_offset ({v['mass_offset']} m) must be less than half the "
+                         f'cube_size ({cube_size} m)')
+    face_tags = _array(v['face_tags'])
+    try:
+        hidden = choose_hidden_model(face_tags, v['mass_index'], v['model_set'],
+                                     v['model_set_size'], v['n_tags'], v['seed'],
+                                     v['model_file'], v['model_index'], v['cube_seed'])
+    except ValueError as err:
+        raise ValueError(f'hidden cube: {err}') from err
+    cube = initial_cube(hidden, float(v['cube_x']), float(v['cube_y']), float(v['cube_yaw']),
+                        int(v['cube_up_face']), cube_size, float(v['mass_offset']))
+    if np.hypot(cube.position[0], cube.position[1]) < cube.half * np.sqrt(2) + 0.05:
+        raise ValueError('cube_x, cube_y: the cube must not stand on the robot (keep it at '
+                         'least 12 cm from the odom origin)')
+    noise = _array(v['orbit_odometry_noise'])
+    try:
+        settings = SimSettings(rate=rate, cmd_vel_timeout=float(v['cmd_vel_timeout']),
+                               orbit_odometry_noise=tuple(noise),
+                               initial_positions=tuple(_array(v['initial_positions'])),
+                               contact=ContactParams(hand_radius=float(v['hand_radius'])))
+    except ValueError as err:
+        raise ValueError(str(err)) from err
+    if settings.initial_positions and len(settings.initial_positions) != 13:
+        raise ValueError('initial_positions must give 13 joint positions (URDF joint order, '
+                         f'as /joint_states), got {len(settings.initial_positions)}')
+    failures = Failures(p_slip_grasp=float(v['p_slip_grasp']),
+                        p_missed_push=float(v['p_missed_push']),
+                        p_push_neighbour=float(v['p_push_neighbour']))
+    effects = ImageEffects(gain=float(v['camera_gain']), blur_sigma=float(v['camera_blur_sigma']),
+                           noise_std=float(v['camera_noise_std']))
+    camera = CameraConfig(camera_rate, v['camera_encoding'], effects,
+                          int(v['camera_supersample']), int(v['camera_noise_bank']), tag_size,
+                          cube_size)
+    distractors = make_distractors(int(v['distractors']), int(v['distractor_seed']),
+                                   cube.position[:2], tag_size, hidden.n_tags,
+                                   avoid=hidden.face_tags)
+    return SimBridgeConfig(dict(v), hidden, cube, settings, failures, camera, distractors,
+                           speedup, bool(v['publish_clock']), gt_rate, int(v['failure_seed']),
+                           bool(v['look_at_cube']))
+
+
+__all__ = ['PARAMETERS', 'PARAMETER_NAMES', 'LIVE_PARAMETERS', 'Param', 'SimBridgeConfig',
+           'CameraConfig', 'build', 'check_speedup', 'defaults']

@@ -1,0 +1,414 @@
+"""The `sim_bridge` node over real DDS: base and joint integration, sim time at the set
+speed-up, camera images that ArUco reads as the ground truth says, and — for every mass
+variant and every manual action — the cube state after real hand trajectories, checked
+against MODEL.md's physics table; bad parameters are refused."""
+
+import os
+import subprocess
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
+
+from builtin_interfaces.msg import Duration, Time  # noqa: E402
+from geometry_msgs.msg import Twist  # noqa: E402
+from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
+from rclpy.qos import (  # noqa: E402
+    QoSDurabilityPolicy,
+    QoSProfile,
+    QoSReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from rosgraph_msgs.msg import Clock  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
+from sim_hand_paths import DlsIK, expected_state, hand_path, view_rotation  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
+
+from abp_description import camera_intrinsics  # noqa: E402
+from abp_description.kinematics import RobotKinematics, base_to_world  # noqa: E402
+from abp_msgs.msg import SimGroundTruth  # noqa: E402
+from abp_sim_bridge.renderer import visible_faces  # noqa: E402
+
+LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
+                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+RELIABLE = QoSProfile(depth=200, reliability=QoSReliabilityPolicy.RELIABLE)
+TAGS = [0, 1, 2, 3, 4, 5]
+
+
+def bridge_executable():
+    prefix = ament_index.get_package_prefix('abp_sim_bridge')
+    return os.path.join(prefix, 'lib', 'abp_sim_bridge', 'sim_bridge')
+
+
+def ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def to_time(t_ns):
+    return Time(sec=int(t_ns // 1_000_000_000), nanosec=int(t_ns % 1_000_000_000))
+
+
+def to_duration(seconds):
+    t_ns = int(round(seconds * 1e9))
+    return Duration(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
+
+
+def rot_to_matrix(q):
+    x, y, z, w = q.x, q.y, q.z, q.w
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def pose_matrix(pose):
+    out = np.eye(4)
+    out[:3, :3] = rot_to_matrix(pose.orientation)
+    out[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
+    return out
+
+
+def yaw_of(q):
+    return float(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z)))
+
+
+class Tester:  # noqa: D101
+    __test__ = False
+
+    """A test node on the bridge's topics; messages are collected in lists."""
+
+    def __init__(self, context, topics):
+        self.node = rclpy.create_node('sim_bridge_tester', context=context)
+        self.executor = SingleThreadedExecutor(context=context)
+        self.executor.add_node(self.node)
+        self.msgs = {name: [] for name in topics}
+        self.wall = {name: [] for name in topics}
+        spec = {
+            'clock': (Clock, '/clock', RELIABLE),
+            'joint_states': (JointState, '/joint_states', RELIABLE),
+            'odom': (Odometry, '/odom', RELIABLE),
+            'image': (Image, '/camera/image_raw', qos_profile_sensor_data),
+            'camera_info': (CameraInfo, '/camera/camera_info', qos_profile_sensor_data),
+            'ground_truth': (SimGroundTruth, '/abp/sim/ground_truth', LATCHED),
+        }
+        for name in topics:
+            msg_type, topic, qos = spec[name]
+            self.node.create_subscription(msg_type, topic, self._collector(name), qos)
+
+    def _collector(self, name):
+        def collect(msg):
+            self.msgs[name].append(msg)
+            self.wall[name].append(time.monotonic())
+        return collect
+
+    def spin_until(self, predicate, timeout):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.02)
+        return predicate()
+
+    def spin_for(self, seconds):
+        self.spin_until(lambda: False, seconds)
+
+    def last(self, name):
+        return self.msgs[name][-1] if self.msgs[name] else None
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+
+
+@pytest.fixture
+def tester_factory(rclpy_context):
+    made = []
+
+    def make(*topics):
+        tester = Tester(rclpy_context, topics)
+        made.append(tester)
+        return tester
+    yield make
+    for tester in made:
+        tester.close()
+
+
+def start_bridge(ros_processes, **params):
+    argv = [bridge_executable(), '--ros-args']
+    for name, value in params.items():
+        argv += ['-p', f'{name}:={value}']
+    return ros_processes.start(argv)
+
+
+def publish_when_matched(tester, publisher, msg, timeout=10):
+    assert tester.spin_until(lambda: publisher.get_subscription_count() > 0, timeout), \
+        f'nobody subscribes to {publisher.topic_name}'
+    publisher.publish(msg)
+
+
+# -- base, joints and clock ------------------------------------------------------------------
+
+def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_factory):
+    speedup = 4.0
+    proc = start_bridge(ros_processes, speedup=speedup, camera_rate=0.0)
+    t = tester_factory('clock', 'odom', 'joint_states')
+    assert t.spin_until(lambda: len(t.msgs['clock']) > 20, 30), 'no /clock'
+    # Simulation time against wall time, over ~2 s of wall time.
+    t.msgs['clock'].clear()
+    t.wall['clock'].clear()
+    t.spin_for(2.0)
+    clocks = [ns(m.clock) * 1e-9 for m in t.msgs['clock']]
+    walls = t.wall['clock']
+    ratio = (clocks[-1] - clocks[0]) / (walls[-1] - walls[0])
+    assert ratio == pytest.approx(speedup, rel=0.15), f'sim/wall = {ratio:.2f}'
+    assert np.all(np.diff(clocks) > 0), 'simulation time must increase'
+    assert np.allclose(np.diff(clocks), 1 / 50.0, atol=1e-6), 'one /clock per 50 Hz tick'
+
+    joints = t.last('joint_states')
+    assert len(joints.name) == len(joints.position) == len(joints.velocity) == 13
+    assert set(joints.name) == set(RobotKinematics().joint_names)
+
+    # Drive an arc: v = 0.2 m/s, w = 0.3 rad/s, commands every 0.2 s of sim time.
+    pub = t.node.create_publisher(Twist, '/cmd_vel', 10)
+    cmd = Twist()
+    cmd.linear.x, cmd.angular.z = 0.2, 0.3
+    assert t.spin_until(lambda: pub.get_subscription_count() > 0, 10)
+    t.msgs['odom'].clear()
+    t.msgs['joint_states'].clear()
+    end = time.monotonic() + 3.0 / speedup * 2  # ~6 s of simulation time
+    while time.monotonic() < end:
+        pub.publish(cmd)
+        t.spin_for(0.2 / speedup)
+    # No more commands: the base must stop within cmd_vel_timeout (0.5 s of sim time).
+    t.spin_for(1.5 / speedup + 0.5)
+    odom = t.msgs['odom']
+    moving = [m for m in odom if m.twist.twist.linear.x != 0.0]
+    assert moving, 'the base never moved'
+    assert all(m.twist.twist.linear.x == pytest.approx(0.2)
+               and m.twist.twist.angular.z == pytest.approx(0.3) for m in moving)
+    duration = (ns(moving[-1].header.stamp) - ns(moving[0].header.stamp)) * 1e-9 + 1 / 50.0
+    assert duration == pytest.approx(6.0, abs=1.0)
+    assert len(moving) == round(duration * 50), 'odometry messages were lost'
+    final = odom[-1]
+    assert final.twist.twist.linear.x == 0.0, 'the base did not stop after cmd_vel_timeout'
+    v, w = 0.2, 0.3
+    x = v / w * np.sin(w * duration)
+    y = v / w * (1 - np.cos(w * duration))
+    pose = final.pose.pose
+    assert pose.position.x == pytest.approx(x, abs=1e-6)
+    assert pose.position.y == pytest.approx(y, abs=1e-6)
+    assert yaw_of(pose.orientation) == pytest.approx(w * duration, abs=1e-6)
+    assert final.header.frame_id == 'odom' and final.child_frame_id == 'base_link'
+    # The wheels turned as a diff drive: radius 0.1 m, track 0.34 m.
+    js = t.msgs['joint_states']
+    left, right = (js[-1].position[js[-1].name.index(n)] - js[0].position[js[0].name.index(n)]
+                   for n in ('left_wheel_joint', 'right_wheel_joint'))
+    assert left == pytest.approx((v - w * 0.17) / 0.1 * duration, abs=1e-6)
+    assert right == pytest.approx((v + w * 0.17) / 0.1 * duration, abs=1e-6)
+    assert proc.poll() is None
+
+
+def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
+    start_bridge(ros_processes, speedup=4.0, camera_rate=0.0, look_at_cube=False)
+    t = tester_factory('joint_states')
+    kin = RobotKinematics()
+    assert t.spin_until(lambda: len(t.msgs['joint_states']) > 5, 30), 'no /joint_states'
+    head = t.node.create_publisher(JointTrajectory, '/head_controller/joint_trajectory', 10)
+    arm = t.node.create_publisher(JointTrajectory, '/left_arm_controller/joint_trajectory', 10)
+    assert t.spin_until(lambda: head.get_subscription_count() > 0
+                        and arm.get_subscription_count() > 0, 10)
+
+    def pos(msg, name):
+        return msg.position[msg.name.index(name)]
+
+    def at(time_s, name):
+        """Position of `name` in the joint state stamped time_s (within half a tick)."""
+        for m in t.msgs['joint_states']:
+            if abs(ns(m.header.stamp) * 1e-9 - time_s) < 0.005:
+                return pos(m, name)
+        raise AssertionError(f'no joint state at t={time_s:.3f}')
+
+    now = ns(t.last('joint_states').header.stamp)
+    start = now + 1_000_000_000  # 1 s of simulation time from now
+    traj = JointTrajectory()
+    traj.header.stamp = to_time(start)
+    traj.joint_names = ['head_tilt_joint', 'head_pan_joint']  # not the controller's order
+    traj.points = [JointTrajectoryPoint(positions=[0.6, -0.4], time_from_start=to_duration(1.0)),
+                   JointTrajectoryPoint(positions=[5.0, 0.2], time_from_start=to_duration(2.0))]
+    head.publish(traj)
+    elbow = JointTrajectory(joint_names=['left_elbow_joint'])  # partial: the others hold
+    elbow.points = [JointTrajectoryPoint(positions=[-1.0], time_from_start=to_duration(2.0)),
+                    JointTrajectoryPoint(positions=[-0.2], time_from_start=to_duration(10.0))]
+    arm.publish(elbow)
+    s = start * 1e-9
+    assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) * 1e-9 > s + 3.0, 30)
+    tilt_hi = kin.upper_limits[kin.joint_index('head_tilt_joint')]
+    # Holds until the stamp, then linear interpolation from the state at receipt.
+    assert at(s - 0.1, 'head_tilt_joint') == pytest.approx(0.0, abs=1e-9)
+    assert at(s + 0.5, 'head_tilt_joint') == pytest.approx(0.3, abs=1e-3)
+    assert at(s + 0.5, 'head_pan_joint') == pytest.approx(-0.2, abs=1e-3)
+    assert at(s + 1.0, 'head_tilt_joint') == pytest.approx(0.6, abs=1e-3)
+    assert at(s + 1.0, 'head_pan_joint') == pytest.approx(-0.4, abs=1e-3)
+    # The second point is clamped to the URDF limit (1.2 rad) before interpolating.
+    assert at(s + 1.5, 'head_tilt_joint') == pytest.approx((0.6 + tilt_hi) / 2, abs=1e-3)
+    assert at(s + 2.0, 'head_tilt_joint') == pytest.approx(tilt_hi, abs=1e-3)
+    assert at(s + 3.0, 'head_pan_joint') == pytest.approx(0.2, abs=1e-3)
+    assert max(m.position[m.name.index('head_tilt_joint')]
+               for m in t.msgs['joint_states']) <= tilt_hi + 1e-9
+    # The elbow (zero stamp: from receipt) is on its way to -1.0; the shoulder holds 0.
+    last = t.last('joint_states')
+    assert pos(last, 'left_shoulder_pitch_joint') == 0.0
+    assert -1.0 < pos(last, 'left_elbow_joint') < 0.0
+    # A new trajectory replaces the running one; no points = stop and hold.
+    arm.publish(JointTrajectory(joint_names=['left_elbow_joint']))
+    t0 = ns(t.last('joint_states').header.stamp)
+    assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) > t0 + 2e9, 30)
+    held = [pos(m, 'left_elbow_joint') for m in t.msgs['joint_states']
+            if ns(m.header.stamp) > t0 + 0.5e9]
+    assert np.ptp(held) < 1e-9, 'the elbow did not hold after an empty trajectory'
+    assert held[0] > -1.0 + 1e-3  # it stopped before reaching the first point
+
+
+# -- camera -------------------------------------------------------------------------------
+
+def test_camera_images_show_the_tags_the_ground_truth_says(ros_processes, tester_factory):
+    start_bridge(ros_processes, speedup=1.0, camera_encoding='bgr8', distractors=3,
+                 cube_x=0.9, cube_y=0.15, cube_yaw=0.35, camera_noise_std=1.5,
+                 face_tags=str(TAGS).replace(' ', ''))
+    t = tester_factory('image', 'camera_info', 'joint_states', 'ground_truth')
+    assert t.spin_until(lambda: len(t.msgs['image']) >= 6 and t.msgs['camera_info']
+                        and t.msgs['ground_truth'], 30), 'no camera images'
+    info = t.last('camera_info')
+    intr = camera_intrinsics()
+    assert (info.width, info.height) == (intr.width, intr.height) == (640, 480)
+    assert np.allclose(np.reshape(info.k, (3, 3)), intr.K)
+    assert info.header.frame_id == 'camera_optical_frame'
+    # Frames every 0.1 s of sim time (best-effort delivery may drop some large frames).
+    stamps = np.array([ns(m.header.stamp) for m in t.msgs['image']]) / 1e8
+    assert np.allclose(stamps, np.round(stamps), atol=1e-6), 'camera_rate 10 Hz of sim time'
+    assert np.all(np.diff(stamps) >= 1 - 1e-6)
+    assert {ns(m.header.stamp) for m in t.msgs['image']} & \
+        {ns(m.header.stamp) for m in t.msgs['camera_info']}, 'image and info share stamps'
+
+    img_msg = t.msgs['image'][-1]
+    assert img_msg.encoding == 'bgr8' and img_msg.step == 640 * 3
+    assert len(img_msg.data) == 640 * 480 * 3
+    img = np.frombuffer(bytes(img_msg.data), np.uint8).reshape(480, 640, 3)
+    # Where was the camera? FK over the joint state of the same stamp + the true base.
+    kin = RobotKinematics()
+    js = next(m for m in t.msgs['joint_states'] if ns(m.header.stamp) == ns(img_msg.header.stamp))
+    q = kin.q_from_mapping(dict(zip(js.name, js.position)))
+    gt = t.last('ground_truth')
+    base = gt.base_pose
+    cam = base_to_world((base.position.x, base.position.y, yaw_of(base.orientation))) \
+        @ kin.camera_pose(q)
+    cube = pose_matrix(gt.cube_pose)
+    assert list(gt.face_tags) == TAGS
+    truth = visible_faces(intr.K, 640, 480, cam, cube, TAGS)
+    expected = {f.tag_id for f in truth if f.in_image and f.area_px > 400 and f.cos_view > 0.25}
+    assert len(expected) >= 2, 'the head should look at the cube (look_at_cube)'
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50),
+                                       cv2.aruco.DetectorParameters())
+    _, ids, _ = detector.detectMarkers(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    found = set() if ids is None else set(ids.ravel().tolist())
+    cube_found = found & set(TAGS)
+    possible = {f.tag_id for f in truth if f.in_image}
+    assert expected <= cube_found <= possible, (expected, found)
+    # Distractors carry ids outside the cube's tags (n_tags..49).
+    assert all(i >= 7 for i in found - set(TAGS))
+
+
+# -- manual actions: every mass variant, real hand trajectories -----------------------------
+
+def _set_and_reset(t, params_client, reset_client, **values):
+    future = params_client.set_parameters([Parameter(k, value=v) for k, v in values.items()])
+    assert t.spin_until(future.done, 10), 'set_parameters timed out'
+    assert all(r.successful for r in future.result().results), future.result()
+    future = reset_client.call_async(Trigger.Request())
+    assert t.spin_until(future.done, 10), 'reset timed out'
+    assert future.result().success, future.result().message
+
+
+def _trajectories(plan):
+    out = {}
+    for controller, (names, points) in plan.controller_points().items():
+        msg = JointTrajectory(joint_names=list(names))
+        msg.points = [JointTrajectoryPoint(positions=list(p), time_from_start=to_duration(tt))
+                      for tt, p in points if tt > 0]
+        out[controller] = msg
+    return out
+
+
+@pytest.mark.parametrize('action', ['PUSH', 'LIFT', 'FLIP'])
+def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processes,
+                                                            tester_factory):
+    """Uniform + the 6 heavy faces: the cube stands with body +z up and body +x away from
+    the robot, so the six heavy faces point in all six V directions."""
+    proc = start_bridge(ros_processes, speedup=20.0, camera_rate=0.0, ground_truth_rate=10.0,
+                        face_tags=str(TAGS).replace(' ', ''), mass_index=0)
+    t = tester_factory('ground_truth')
+    plan = hand_path(action, cube_xy=(0.40, 0.0), ik=DlsIK())
+    msgs = _trajectories(plan)
+    pubs = {c: t.node.create_publisher(JointTrajectory, f'/{c}/joint_trajectory', 10)
+            for c in msgs}
+    params = AsyncParameterClient(t.node, 'sim_bridge')
+    reset = t.node.create_client(Trigger, '/sim_bridge/reset_world')
+    assert t.spin_until(lambda: t.msgs['ground_truth'], 30), 'no ground truth'
+    assert params.wait_for_services(timeout_sec=10) and reset.wait_for_service(timeout_sec=10)
+    assert t.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs.values()), 10)
+    # A bad value is refused when set, with the parameter's name.
+    refused = params.set_parameters([Parameter('camera_encoding', value='rgb8')])
+    assert t.spin_until(refused.done, 10)
+    assert not refused.result().results[0].successful
+    assert 'camera_encoding' in refused.result().results[0].reason
+    rel = view_rotation(np.eye(3), (0.40, 0.0))
+    results = {}
+    for mass in range(7):
+        wall0 = time.monotonic()
+        _set_and_reset(t, params, reset, mass_index=mass)
+        assert t.spin_until(lambda: t.last('ground_truth').mass_index == mass
+                            and t.last('ground_truth').manual_actions == 0, 10)
+        start = t.last('ground_truth')
+        assert start.state == expected_state('PUSH', 0, rel)  # slide = the initial state
+        # One common start stamp for the three controllers (zero stamps would start each
+        # on its own receipt, ticks apart at this speed-up, and the hands would not meet).
+        begin = ns(start.header.stamp) + 1_000_000_000
+        for controller, msg in msgs.items():
+            msg.header.stamp = to_time(begin)
+            pubs[controller].publish(msg)
+        done = begin * 1e-9 + plan.duration + 1.0
+        assert t.spin_until(lambda: ns(t.last('ground_truth').header.stamp) * 1e-9 > done, 60)
+        gt = t.last('ground_truth')
+        results[mass] = (gt.state, expected_state(action, mass, rel), gt.manual_actions,
+                         gt.last_outcome, round(time.monotonic() - wall0, 2))
+    assert proc.poll() is None
+    ros_processes.stop_all()
+    log = ros_processes.output(proc)
+    for mass, (state, want, count, outcome, _) in results.items():
+        assert count == 1, f'mass {mass}: {count} manual actions ({outcome})\n{log}'
+        assert outcome.startswith(action), f'mass {mass}: {outcome}\n{log}'
+        assert state == want, f'{action}, mass {mass}: state {state}, MODEL.md says {want} ' \
+                              f'({outcome})\n{log}'
+
+
+# -- configuration errors -------------------------------------------------------------------
+
+@pytest.mark.parametrize('override, expected', [
+    ('speedup:=0.0', 'speedup'),
+    ('camera_encoding:=rgb8', 'camera_encoding'),
+    ('face_tags:=[1,1,2,3,4,5]', 'face_tags'),
+    ('camera_rate:=100.0', 'camera_rate'),
+])
+def test_bad_parameters_are_refused_clearly(override, expected):
+    result = subprocess.run([bridge_executable(), '--ros-args', '-p', override],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert 'configuration error' in result.stderr and expected in result.stderr
+    assert 'Traceback' not in result.stderr

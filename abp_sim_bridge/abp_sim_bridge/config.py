@@ -90,6 +90,8 @@ PARAMETERS = (
     Param('camera_noise_std', DOUBLE, 1.0, 'Gaussian image noise, grey levels.', (0.0, 100.0)),
     Param('camera_blur_sigma', DOUBLE, 0.5, 'Gaussian blur sigma, pixels.', (0.0, 20.0)),
     Param('camera_gain', DOUBLE, 1.0, 'Exposure gain (multiplies intensities).', (0.05, 20.0)),
+    Param('p_missed_tag', DOUBLE, 0.0, 'Probability that a tag is not drawn in a frame '
+          '(glare, occlusion): fault injection for the detector and matcher.', (0.0, 1.0)),
     Param('camera_supersample', INT, 4, 'Renderer supersampling of face outlines '
           '(1 = fastest).', (1, 8)),
     Param('camera_noise_bank', INT, 8, 'Image noise from this many pre-drawn noise frames '
@@ -136,6 +138,7 @@ class CameraConfig:
     noise_bank: int
     tag_size: float
     cube_size: float
+    p_missed_tag: float = 0.0
 
 
 @dataclass
@@ -226,7 +229,7 @@ def build(values):
                            noise_std=float(v['camera_noise_std']))
     camera = CameraConfig(camera_rate, v['camera_encoding'], effects,
                           int(v['camera_supersample']), int(v['camera_noise_bank']), tag_size,
-                          cube_size)
+                          cube_size, float(v['p_missed_tag']))
     distractors = make_distractors(int(v['distractors']), int(v['distractor_seed']),
                                    cube.position[:2], tag_size, hidden.n_tags,
                                    avoid=hidden.face_tags)

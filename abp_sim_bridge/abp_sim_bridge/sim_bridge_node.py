@@ -234,6 +234,7 @@ class SimBridgeNode(Node):
                                        seed=config.failure_seed, noise_bank=cam.noise_bank)
         self.distractors = config.distractors
         self.hidden = config.hidden
+        self._tag_miss_rng = np.random.default_rng(config.failure_seed + 1)
         self.config = config
         period = settings.period_ns
         self._camera_period_ns = (int(round(1e9 / cam.rate)) if cam.rate > 0 else 0)
@@ -342,7 +343,7 @@ class SimBridgeNode(Node):
                 if self._next_camera_ns <= t_ns:
                     self._next_camera_ns = t_ns + self._camera_period_ns
                 frame = _Frame(stamp, sim.camera_pose(), sim.display_cube().pose(),
-                               self.hidden.face_tags, self.renderer, self.distractors)
+                               self._drawn_tags(), self.renderer, self.distractors)
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if new_events or self._gt_now or (self._gt_period_ns and t_ns >= self._next_gt_ns):
@@ -398,6 +399,16 @@ class SimBridgeNode(Node):
         msg.manual_actions = sim.manual_actions
         msg.last_outcome = sim.last_outcome
         return msg
+
+    def _drawn_tags(self):
+        """The face tags drawn in this frame: each is left blank (a missed tag) with
+        probability p_missed_tag, the fault injection for perception."""
+        tags = np.asarray(self.hidden.face_tags)
+        p_missed = self.config.camera.p_missed_tag
+        if p_missed <= 0:
+            return tuple(int(t) for t in tags)
+        missed = self._tag_miss_rng.random(tags.size) < p_missed
+        return tuple(int(t) for t in np.where(missed, -1, tags))
 
     # -- the render thread ------------------------------------------------------------
     def _camera_info_msg(self):
@@ -467,6 +478,11 @@ def main(args=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl-C shuts the context down under a running callback; only a
+        # failure while the context is still valid is a real error.
+        if rclpy.ok():
+            raise
     finally:
         node.stop()
         failed = node.failed

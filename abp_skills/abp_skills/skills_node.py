@@ -741,6 +741,11 @@ def _main(node_name, skills, feasibility, args=None):
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # Ctrl-C shuts the context down under a running callback; only a
+        # failure while the context is still valid is a real error.
+        if rclpy.ok():
+            raise
     finally:
         try:
             node.stop_motion()

@@ -138,6 +138,10 @@ done
 
 client_args=(--planner "$planner" --max-actions "$max_actions" --timeout "$timeout")
 [ -n "$result_json" ] && client_args+=(--result-json "$result_json")
+# In the background with `wait`, so that a SIGINT/SIGTERM sent to this script runs
+# its trap at once (bash defers traps while a foreground child runs).
+"$REPO/install/abp_bringup/lib/abp_bringup/recognize" "${client_args[@]}" &
+pids+=("$!")
 rc=0
-"$REPO/install/abp_bringup/lib/abp_bringup/recognize" "${client_args[@]}" || rc=$?
+wait "$!" || rc=$?
 exit "$rc"

@@ -268,21 +268,31 @@ class PlannerNode(Node):
         return first
 
     def _decide(self, planner, belief, refused_after_failure):
-        feasible = self._check_feasibility()
+        """The planner's choice among the feasible actions.
 
-        def allowed(action):
-            return feasible.get(action, (True, ""))[0] and action not in refused_after_failure
-
+        "Nothing feasible" is often transient (the skills have not yet seen a cube
+        pose estimate, or the estimate is momentarily stale), so it is re-checked
+        for up to observation_timeout before the recognition is aborted.
+        """
         belief_filter = self._belief_filter(belief)
-        try:
-            return planner.choose(belief_filter, feasible=allowed), feasible
-        except RuntimeError as error:
-            if not refused_after_failure:
-                reasons = "; ".join(f"{a}: {r}" for a, (ok, r) in feasible.items() if not ok)
-                raise RecognitionAborted(f"{error} ({reasons})") from error
-            # Every other action is infeasible: allow a retry of the failed one.
-            refused_after_failure.clear()
-            return planner.choose(belief_filter, feasible=allowed), feasible
+        deadline = time.monotonic() + self._param("observation_timeout")
+        while True:
+            feasible = self._check_feasibility()
+
+            def allowed(action, feasible=feasible):
+                return feasible.get(action, (True, ""))[0] and action not in refused_after_failure
+
+            try:
+                return planner.choose(belief_filter, feasible=allowed), feasible
+            except RuntimeError as error:
+                if refused_after_failure:
+                    # Every other action is infeasible: allow a retry of the failed one.
+                    refused_after_failure.clear()
+                    continue
+                if time.monotonic() > deadline:
+                    reasons = "; ".join(f"{a}: {r}" for a, (ok, r) in feasible.items() if not ok)
+                    raise RecognitionAborted(f"{error} ({reasons})") from error
+                time.sleep(0.5)
 
     def _check_feasibility(self):
         if not self._param("use_feasibility"):

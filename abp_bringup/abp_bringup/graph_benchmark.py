@@ -1,0 +1,227 @@
+"""`graph_benchmark`: recognition episodes through the real graph in simulation.
+
+    graph_benchmark --episodes 20 [--faults] [--models robot] [--planner abp]
+                    [--seed S] [--json FILE]
+
+Each episode is one `scripts/start_graph.sh` run (every node its own process,
+over DDS) with a seeded hidden cube from the model set; the result is compared
+with the sim's ground truth. --faults injects 10% grasp slips and missed pushes,
+10% missed tags per frame, 2 distractor tags and orbit odometry noise. A probe
+subscribed to /camera/image_raw and /abp/belief measures the wall-clock latency
+from an image to the belief update it caused (matched by header stamp).
+Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
+"""
+
+import argparse
+import json
+import os
+import pathlib
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import (
+    QoSDurabilityPolicy,
+    QoSProfile,
+    QoSReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import Image
+
+from abp_belief.population import model_set_from_config
+from abp_msgs.msg import Belief
+
+FAULTS_YAML = """sim_bridge:
+  ros__parameters:
+    p_slip_grasp: 0.1
+    p_missed_push: 0.1
+    p_missed_tag: 0.1
+    distractors: 2
+    orbit_odometry_noise: [0.01, 0.02]
+"""
+
+
+def repo_root():
+    env = os.environ.get("ABP_REPO")
+    return pathlib.Path(env) if env else pathlib.Path(__file__).resolve().parents[2]
+
+
+class LatencyProbe:
+    """Wall-clock time from an image's arrival to the belief stamped with it."""
+
+    def __init__(self):
+        self.context = rclpy.context.Context()
+        # No rclpy signal handler: Ctrl-C must reach the episode loop as KeyboardInterrupt
+        # so that the running graph is stopped cleanly.
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.node = rclpy.create_node("latency_probe", context=self.context)
+        self.image_times = {}
+        self.latencies_ms = []
+        self.node.create_subscription(Image, "/camera/image_raw", self._on_image,
+                                      qos_profile_sensor_data)
+        latched = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE,
+                             durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
+        self.node.create_subscription(Belief, "/abp/belief", self._on_belief, latched)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    @staticmethod
+    def _key(stamp):
+        return stamp.sec, stamp.nanosec
+
+    def _on_image(self, msg):
+        self.image_times[self._key(msg.header.stamp)] = time.monotonic()
+
+    def _on_belief(self, msg):
+        arrived = self.image_times.get(self._key(msg.header.stamp))
+        if arrived is not None:  # corrections only: predictions carry the action's stamp
+            self.latencies_ms.append((time.monotonic() - arrived) * 1e3)
+
+    def _spin(self):
+        while not self._stop.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def close(self):
+        self._stop.set()
+        self._thread.join(timeout=5)
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+
+
+def parse_args(argv):
+    parser = argparse.ArgumentParser(prog="graph_benchmark", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--models", default="robot", help="as start_graph.sh --models")
+    parser.add_argument("--planner", default="abp")
+    parser.add_argument("--seed", type=int, default=0, help="model-set seed")
+    parser.add_argument("--faults", action="store_true")
+    parser.add_argument("--speedup", type=float, default=10.0)
+    parser.add_argument("--timeout", type=float, default=900.0, help="per episode, wall s")
+    parser.add_argument("--json", default="")
+    args = parser.parse_args(argv)
+    if args.episodes < 1:
+        parser.error("--episodes must be >= 1")
+    return args
+
+
+def model_count(models, seed):
+    if models.startswith("random:"):
+        return model_set_from_config("random", int(models.split(":")[1]), seed=seed).num_models
+    return model_set_from_config(models, seed=seed).num_models
+
+
+def stop_graph(proc):
+    """SIGTERM lets start_graph.sh stop its nodes (SIGKILL would orphan them; SIGINT is
+    ignored by scripts started in the background of a non-interactive shell)."""
+    proc.send_signal(signal.SIGTERM)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def run_episode(args, index, workdir, params_file):
+    result_file = workdir / f"episode-{index}.json"
+    cmd = [str(repo_root() / "scripts" / "start_graph.sh"), "--models", args.models,
+           "--seed", str(args.seed), "--object", str(index), "--planner", args.planner,
+           "--speedup", str(args.speedup), "--result-json", str(result_file),
+           "--log-dir", str(workdir / f"logs-{index}"), "--timeout", str(args.timeout)]
+    if params_file:
+        cmd += ["--params", str(params_file)]
+    started = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        proc.wait(timeout=args.timeout + 120)
+    except subprocess.TimeoutExpired:
+        stop_graph(proc)
+        return {"object": index, "hung": True, "correct": False,
+                "wall_s": time.monotonic() - started}
+    except KeyboardInterrupt:
+        stop_graph(proc)
+        raise
+    result = json.loads(result_file.read_text()) if result_file.exists() else {}
+    result.update(object=index, hung=False, wall_s=time.monotonic() - started)
+    result.setdefault("correct", False)
+    return result
+
+
+def summarise(results, latencies, args):
+    n = len(results)
+    correct = sum(r["correct"] for r in results)
+    done = [r for r in results if "actions" in r]
+    lat = np.array(latencies) if latencies else np.array([np.nan])
+    rows = [
+        ("episodes", f"{n}"),
+        ("correct", f"{correct}/{n} ({100.0 * correct / n:.1f} %)"),
+        ("hung (no result within the timeout)", f"{sum(r['hung'] for r in results)}"),
+        ("mean actions", f"{statistics.mean(r['actions'] for r in done):.2f}" if done else "-"),
+        ("mean sim time per episode (s)",
+         f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else "-"),
+        ("median wall time per episode (s)",
+         f"{statistics.median(r['wall_s'] for r in results):.1f}"),
+        ("image -> belief latency, median / p95 (ms)",
+         f"{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)"),
+    ]
+    title = (f"{args.models} models, planner {args.planner}, "
+             f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
+    lines = [f"**{title}**", "", "| measure | value |", "|---|---|"]
+    lines += [f"| {k} | {v} |" for k, v in rows]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    # Ctrl-C and SIGTERM end the run through KeyboardInterrupt, which stops the
+    # running graph first (even when started with SIGINT ignored, e.g. by `nohup`).
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    count = model_count(args.models, args.seed)
+    objects = np.random.default_rng(args.seed).choice(count, size=args.episodes,
+                                                      replace=args.episodes > count)
+    probe = LatencyProbe()
+    results = []
+    with tempfile.TemporaryDirectory(prefix="abp-graph-bench-") as tmp:
+        workdir = pathlib.Path(tmp)
+        params_file = None
+        if args.faults:
+            params_file = workdir / "faults.yaml"
+            params_file.write_text(FAULTS_YAML)
+        try:
+            for number, index in enumerate(objects, 1):
+                result = run_episode(args, int(index), workdir, params_file)
+                results.append(result)
+                print(f"[{number}/{args.episodes}] object {index}: "
+                      f"{'correct' if result['correct'] else 'WRONG'} "
+                      f"{result.get('object_id', '-')} (truth {result.get('ground_truth', '-')}) "
+                      f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",
+                      file=sys.stderr, flush=True)
+        except KeyboardInterrupt:
+            print("[graph_benchmark] interrupted; the running graph was stopped",
+                  file=sys.stderr)
+            return 130
+        finally:
+            probe.close()
+    table = summarise(results, probe.latencies_ms, args)
+    print(table)
+    if args.json:
+        with open(args.json, "w") as out:
+            json.dump({"args": vars(args), "results": results,
+                       "latencies_ms": probe.latencies_ms}, out, indent=2)
+    return 0 if all(r["correct"] for r in results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -18,11 +18,11 @@ import pytest
 rclpy = pytest.importorskip("rclpy")
 ament_index = pytest.importorskip("ament_index_python.packages")
 
-from abp_bringup.bag import BagError, bag_topics, deserialize, read_bag, typestore  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
+from abp_bringup.bag import BagError, bag_topics, deserialize, read_bag, typestore  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]

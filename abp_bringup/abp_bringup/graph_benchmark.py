@@ -37,7 +37,7 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 
 from abp_belief.population import model_set_from_config
-from abp_msgs.msg import Belief
+from abp_msgs.msg import AspectObservation, Belief
 
 FAULTS_YAML = """sim_bridge:
   ros__parameters:
@@ -55,7 +55,9 @@ def repo_root():
 
 
 class LatencyProbe:
-    """Wall-clock time from an image's arrival to the belief stamped with it."""
+    """Wall-clock time from an image's arrival to the belief stamped with it, and to the
+    aspect observation stamped with it (every frame). Images are keyed by stamp, so
+    the keys are cleared between episodes (each episode's sim clock starts at 0)."""
 
     def __init__(self):
         self.context = rclpy.context.Context()
@@ -65,11 +67,14 @@ class LatencyProbe:
         self.node = rclpy.create_node("latency_probe", context=self.context)
         self.image_times = {}
         self.latencies_ms = []
+        self.observation_latencies_ms = []
         self.node.create_subscription(Image, "/camera/image_raw", self._on_image,
                                       qos_profile_sensor_data)
         latched = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE,
                              durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
         self.node.create_subscription(Belief, "/abp/belief", self._on_belief, latched)
+        self.node.create_subscription(AspectObservation, "/abp/aspect_observation",
+                                      self._on_observation, 10)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = threading.Event()
@@ -82,6 +87,14 @@ class LatencyProbe:
 
     def _on_image(self, msg):
         self.image_times[self._key(msg.header.stamp)] = time.monotonic()
+
+    def new_episode(self):
+        self.image_times = {}
+
+    def _on_observation(self, msg):
+        arrived = self.image_times.get(self._key(msg.header.stamp))
+        if arrived is not None:
+            self.observation_latencies_ms.append((time.monotonic() - arrived) * 1e3)
 
     def _on_belief(self, msg):
         arrived = self.image_times.get(self._key(msg.header.stamp))
@@ -158,11 +171,12 @@ def run_episode(args, index, workdir, params_file):
     return result
 
 
-def summarise(results, latencies, args):
+def summarise(results, latencies, observation_latencies, args):
     n = len(results)
     correct = sum(r["correct"] for r in results)
     done = [r for r in results if "actions" in r]
     lat = np.array(latencies) if latencies else np.array([np.nan])
+    obs = np.array(observation_latencies) if observation_latencies else np.array([np.nan])
     rows = [
         ("episodes", f"{n}"),
         ("correct", f"{correct}/{n} ({100.0 * correct / n:.1f} %)"),
@@ -174,6 +188,9 @@ def summarise(results, latencies, args):
          f"{statistics.median(r['wall_s'] for r in results):.1f}"),
         ("image -> belief latency, median / p95 (ms)",
          f"{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)"),
+        ("image -> aspect observation latency, median / p95 (ms)",
+         f"{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} "
+         f"({len(observation_latencies)} frames)"),
     ]
     title = (f"{args.models} models, planner {args.planner}, "
              f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
@@ -201,6 +218,7 @@ def main(argv=None):
             params_file.write_text(FAULTS_YAML)
         try:
             for number, index in enumerate(objects, 1):
+                probe.new_episode()
                 result = run_episode(args, int(index), workdir, params_file)
                 results.append(result)
                 print(f"[{number}/{args.episodes}] object {index}: "
@@ -214,12 +232,14 @@ def main(argv=None):
             return 130
         finally:
             probe.close()
-    table = summarise(results, probe.latencies_ms, args)
+    table = summarise(results, probe.latencies_ms, probe.observation_latencies_ms, args)
     print(table)
     if args.json:
         with open(args.json, "w") as out:
             json.dump({"args": vars(args), "results": results,
-                       "latencies_ms": probe.latencies_ms}, out, indent=2)
+                       "latencies_ms": probe.latencies_ms,
+                       "observation_latencies_ms": probe.observation_latencies_ms}, out,
+                      indent=2)
     return 0 if all(r["correct"] for r in results) else 1
 
 

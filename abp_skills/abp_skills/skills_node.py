@@ -608,6 +608,7 @@ class SkillsNode(Node):
         settle = self._param('settle_timeout')
         tol = self._param('goal_tolerance')
         idx = [self.kin.joint_index(n) for n in trajectory.joint_names]
+        ended_wall = None
         while True:
             stop = self._check_goal(goal_handle, started)
             if stop:
@@ -622,7 +623,12 @@ class SkillsNode(Node):
                 err = np.abs(q[idx] - trajectory.end)
                 if np.max(err) <= tol:
                     return None
-                if t >= trajectory.duration + settle:
+                # Settle in sim time *and* wall time: at a high sim speed-up on a busy
+                # machine the joint states can lag the sim clock by more than `settle`.
+                if ended_wall is None:
+                    ended_wall = time.monotonic()
+                if (t >= trajectory.duration + settle
+                        and time.monotonic() - ended_wall >= settle):
                     worst = trajectory.joint_names[int(np.argmax(err))]
                     return 'abort', (f'the joints did not reach the end of the {name} phase '
                                      f'({worst} {np.max(err):.3f} rad off)')

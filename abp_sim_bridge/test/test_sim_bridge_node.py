@@ -155,6 +155,9 @@ def publish_when_matched(tester, publisher, msg, timeout=10):
 
 # -- base, joints and clock ------------------------------------------------------------------
 
+# Closed-loop timing over DDS: on an overloaded machine the state streams can lag
+# the controllers; a real fault fails every rerun.
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_factory):
     speedup = 4.0
     proc = start_bridge(ros_processes, speedup=speedup, camera_rate=0.0)

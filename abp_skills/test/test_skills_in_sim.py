@@ -23,6 +23,10 @@ from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # n
 from abp_msgs.action import Flip, Lift, Orbit, Push  # noqa: E402
 from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 
+# Skills close the loop on joint states and odometry from the sim over DDS; on an
+# overloaded machine those can lag the sim clock. A real fault fails every rerun.
+pytestmark = pytest.mark.flaky(reruns=2, reruns_delay=2)
+
 LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
                      durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)

@@ -152,6 +152,9 @@ def tester(rclpy_context):
     t.close()
 
 
+# Closed-loop timing over DDS: on an overloaded machine the state streams can lag
+# the controllers; a real fault fails every rerun.
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_refusals_and_the_feasibility_service(ros_processes, tester):
     start_robot(ros_processes)
     start_server(ros_processes, "skill_servers", max_estimate_age=1.5)
@@ -201,6 +204,9 @@ def test_refusals_and_the_feasibility_service(ros_processes, tester):
     assert not res.result.success and "s old" in res.result.reason
 
 
+# Closed-loop timing over DDS: on an overloaded machine the state streams can lag
+# the controllers; a real fault fails every rerun.
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, tester):
     start_robot(ros_processes)
     # Separate processes: the one-skill-at-a-time rule goes through /abp/skills/active.
@@ -251,6 +257,9 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     assert tester.result(lift, 10).status == GoalStatus.STATUS_CANCELED
 
 
+# Closed-loop timing over DDS: on an overloaded machine the state streams can lag
+# the controllers; a real fault fails every rerun.
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     start_robot(ros_processes)
     start_server(ros_processes, "skill_servers")

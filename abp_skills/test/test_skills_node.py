@@ -128,6 +128,17 @@ class Harness:
         self.node.destroy_client(client)
         return {a: (ok, r) for a, ok, r in zip(res.actions, res.feasible, res.reasons)}
 
+    def wait_until_feasibility(self, action, predicate, timeout=20.0):
+        """Ask the feasibility service until `predicate((ok, reason))` holds for `action`:
+        the server sees the estimate and states the tester publishes only after DDS
+        delivered them, which can take a while on a loaded machine."""
+        deadline = time.monotonic() + timeout
+        answer = self.feasibility([action])[action]
+        while not predicate(answer) and time.monotonic() < deadline:
+            self.spin(lambda: False, 0.3)
+            answer = self.feasibility([action])[action]
+        return answer
+
     def send(self, action_type, name, goal, feedback=None):
         client = ActionClient(self.node, action_type, f"/abp/skills/{name}")
         assert self.spin(client.server_is_ready, 20), f"no {name} server"
@@ -172,7 +183,7 @@ def test_refusals_and_the_feasibility_service(ros_processes, tester):
 
     # Cube far away (1.3 m): the manual skills are out of reach; ORBIT may still go.
     tester.cube_odom = (1.3, 0.0)
-    assert tester.spin(lambda: False, 0.6) is False
+    tester.wait_until_feasibility("PUSH", lambda a: "out of reach" in a[1])
     answer = tester.feasibility()
     for action in ("PUSH", "LIFT", "FLIP"):
         assert not answer[action][0] and "out of reach" in answer[action][1]
@@ -191,7 +202,7 @@ def test_refusals_and_the_feasibility_service(ros_processes, tester):
 
     # Cube in front: everything is feasible.
     tester.cube_odom = (0.4, 0.0)
-    tester.spin(lambda: False, 0.6)
+    tester.wait_until_feasibility("LIFT", lambda a: a[0])
     answer = tester.feasibility()
     assert all(ok for ok, _ in answer.values()), answer
     assert tester.feasibility(["LIFT"]) == {"LIFT": (True, "")}
@@ -214,7 +225,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     start_server(ros_processes, "lift_server")
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
-    tester.spin(lambda: False, 0.6)
+    assert tester.wait_until_feasibility("ORBIT_180", lambda a: a[0])[0]
 
     feedback = []
     _, orbit = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=180.0), feedback)
@@ -265,7 +276,7 @@ def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     start_server(ros_processes, "skill_servers")
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
-    tester.spin(lambda: False, 0.6)
+    assert tester.wait_until_feasibility("ORBIT_M90", lambda a: a[0])[0]
 
     feedback = []
     _, orbit = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=-90.0), feedback)

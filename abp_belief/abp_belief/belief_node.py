@@ -13,9 +13,7 @@ import array
 import sys
 
 import numpy as np
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
@@ -32,6 +30,7 @@ from .model_set_params import (
     load_model_set,
     probability_range,
 )
+from .node_main import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
                      durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
@@ -179,28 +178,7 @@ def _stamp_ns(stamp):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = BeliefNode()
-    except (ValueError, model_io.ModelFileError,
-            rclpy.exceptions.InvalidParameterValueException) as error:
-        # Bad configuration: say what is wrong and exit, rather than a traceback loop.
-        print(f"[belief] configuration error: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node("belief", BeliefNode, args, config_errors=(model_io.ModelFileError,))
 
 
 if __name__ == "__main__":

@@ -9,9 +9,7 @@ record_images, storage (mcap | sqlite3). The bag is closed on Ctrl-C / shutdown.
 import importlib
 import sys
 
-import rclpy
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (
     QoSDurabilityPolicy,
@@ -19,6 +17,8 @@ from rclpy.qos import (
     QoSReliabilityPolicy,
     qos_profile_sensor_data,
 )
+
+from abp_belief.node_main import run_node
 
 from .bag import GRAPH_TOPICS, IMAGE_TOPICS, LATCHED_TOPICS, SENSOR_TOPICS, BagError, BagWriter
 
@@ -80,27 +80,9 @@ class BagRecorder(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = BagRecorder()
-    except (ValueError, BagError) as error:
-        print(f"[bag_recorder] configuration error: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.close()  # an unclosed MCAP bag loses its index: always close
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    # An unclosed MCAP bag loses its index: always close it.
+    return run_node("bag_recorder", BagRecorder, args, config_errors=(BagError,),
+                    on_exit=BagRecorder.close)
 
 
 if __name__ == "__main__":

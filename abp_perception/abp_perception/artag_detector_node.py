@@ -16,18 +16,17 @@ encoding are skipped with a clear (throttled) error.
 import sys
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import (
     FloatingPointRange,
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
+from abp_belief.node_main import run_node
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
 from .detector import DICTIONARY_NAMES, ImageEncodingError, TagDetector, image_msg_to_gray
@@ -224,27 +223,8 @@ class ArtagDetectorNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = ArtagDetectorNode()
-    except (ValueError, FileNotFoundError,
-            rclpy.exceptions.InvalidParameterValueException) as error:
-        print(f"[artag_detector] configuration error: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node("artag_detector", ArtagDetectorNode, args,
+                    config_errors=(FileNotFoundError,))
 
 
 if __name__ == "__main__":

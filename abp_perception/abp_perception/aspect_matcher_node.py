@@ -14,7 +14,6 @@ needs the robot base's position.
 import sys
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import Point, Vector3
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -22,7 +21,6 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 
@@ -32,6 +30,7 @@ from abp_belief.model_set_params import (
     declare_model_set_parameters,
     load_model_set,
 )
+from abp_belief.node_main import run_node
 from abp_msgs.msg import AspectHypothesis, AspectObservation, Feature, TagDetectionArray
 
 from .geometry import quaternion_to_rotation, rotation_to_quaternion
@@ -183,27 +182,7 @@ class AspectMatcherNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = AspectMatcherNode()
-    except (ValueError, ModelFileError,
-            rclpy.exceptions.InvalidParameterValueException) as error:
-        print(f"[aspect_matcher] configuration error: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    return run_node("aspect_matcher", AspectMatcherNode, args, config_errors=(ModelFileError,))
 
 
 if __name__ == "__main__":

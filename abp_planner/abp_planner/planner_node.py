@@ -21,7 +21,7 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 from visualization_msgs.msg import MarkerArray
@@ -34,6 +34,7 @@ from abp_belief.model_set_params import (
     integer_range,
     load_model_set,
 )
+from abp_belief.node_main import run_node
 from abp_msgs.action import Flip, Lift, Orbit, Push, Recognize
 from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
 from abp_msgs.srv import CheckFeasibility, ResetBelief
@@ -395,29 +396,9 @@ def _gain(decision):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = PlannerNode()
-    except (ValueError, model_io.ModelFileError,
-            rclpy.exceptions.InvalidParameterValueException) as error:
-        print(f"[planner] configuration error: {error}", file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    # Multi-threaded: the Recognize loop blocks while skill results and beliefs arrive.
+    return run_node("planner", PlannerNode, args, config_errors=(model_io.ModelFileError,),
+                    make_executor=lambda: MultiThreadedExecutor(num_threads=4))
 
 
 if __name__ == "__main__":

@@ -31,6 +31,7 @@ class ProcessGroup:
 
     def __init__(self):
         self.processes = []
+        self._unread = {}  # pid -> output read from the pipe but not yet returned
 
     def start(self, argv, **kwargs):
         proc = subprocess.Popen(
@@ -68,29 +69,41 @@ class ProcessGroup:
                 pass
 
     def wait_for_line(self, proc, text, timeout):
-        """Read `proc`'s output until a line contains `text`; returns the lines read."""
+        """Read `proc`'s output until a line contains `text`; returns the lines read.
+
+        Reads the pipe's file descriptor directly: a buffered readline could hold
+        the awaited line in its buffer while select() reports the pipe idle.
+        """
+        pending = self._unread.pop(proc.pid, "")
         lines = []
         deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
+        while True:
+            while "\n" in pending:
+                line, pending = pending.split("\n", 1)
+                lines.append(line + "\n")
+                if text in line:
+                    self._unread[proc.pid] = pending
+                    return lines
+            if time.monotonic() >= deadline:
+                break
             ready, _, _ = select.select([proc.stdout], [], [], 0.1)
             if ready:
-                line = proc.stdout.readline()
-                if not line and proc.poll() is not None:
-                    break
-                lines.append(line)
-                if text in line:
-                    return lines
+                chunk = os.read(proc.stdout.fileno(), 65536)
+                if not chunk:
+                    break  # the process closed its output
+                pending += chunk.decode(errors="replace")
             elif proc.poll() is not None:
                 break
+        self._unread[proc.pid] = pending
         raise AssertionError(
             f"{proc.args!r} did not print {text!r} within {timeout} s "
-            f"(exit code {proc.poll()}); output so far:\n{''.join(lines)}")
+            f"(exit code {proc.poll()}); output so far:\n{''.join(lines)}{pending}")
 
     def output(self, proc):
-        """All output of a finished (or stopped) process."""
+        """All output of a finished (or stopped) process not yet read by wait_for_line."""
         if proc.stdout is None:
             return ""
-        return proc.stdout.read()
+        return self._unread.pop(proc.pid, "") + proc.stdout.read()
 
 
 @pytest.fixture

@@ -136,6 +136,21 @@ for i in "${!pids[@]}"; do
   fi
 done
 
+if [ -n "$record" ]; then
+  # Subscriptions match their publishers some time after a node starts: wait until
+  # the recorder hears the belief and the observations, so the bag has the episode's start.
+  wanted=(/abp/belief)
+  [ "$robot" = 0 ] && wanted+=(/abp/aspect_observation)
+  for topic in "${wanted[@]}"; do
+    for _ in $(seq 300); do
+      grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null && break
+      sleep 0.1
+    done
+    grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null \
+      || echo "[start_graph] warning: the recorder has heard nothing on $topic after 30 s" >&2
+  done
+fi
+
 client_args=(--planner "$planner" --max-actions "$max_actions" --timeout "$timeout")
 [ -n "$result_json" ] && client_args+=(--result-json "$result_json")
 # In the background with `wait`, so that a SIGINT/SIGTERM sent to this script runs

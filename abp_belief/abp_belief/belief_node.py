@@ -10,6 +10,7 @@ converts messages and parameters.
 """
 
 import array
+import collections
 import sys
 
 import numpy as np
@@ -34,7 +35,9 @@ from .node_main import run_node
 
 LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
                      durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
+# Deep enough that a replay or a busy machine does not overwrite unread inputs.
+OBSERVATION_QUEUE_DEPTH = 100
+INPUTS = QoSProfile(depth=OBSERVATION_QUEUE_DEPTH, reliability=QoSReliabilityPolicy.RELIABLE)
 
 
 class BeliefNode(Node):
@@ -51,11 +54,16 @@ class BeliefNode(Node):
         self._awaiting_observation = True
         # Frames taken before the last action ended show the old state: skip them.
         self._earliest_observation_ns = 0
+        # Observations and executed actions come on two topics, whose relative order
+        # DDS does not keep. Frames stamped after the last action that arrive while
+        # no correction is due wait here, in case the next action's message arrives
+        # after the frames that already show its outcome.
+        self._early_observations = collections.deque(maxlen=OBSERVATION_QUEUE_DEPTH)
         self._belief_pub = self.create_publisher(Belief, "/abp/belief", LATCHED)
         self.create_subscription(AspectObservation, "/abp/aspect_observation",
-                                 self._on_observation, RELIABLE)
+                                 self._on_observation, INPUTS)
         self.create_subscription(ExecutedAction, "/abp/executed_action",
-                                 self._on_executed_action, RELIABLE)
+                                 self._on_executed_action, INPUTS)
         self.create_service(ResetBelief, "/abp/reset_belief", self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
@@ -93,10 +101,15 @@ class BeliefNode(Node):
         if not msg.hypotheses:
             self.get_logger().debug("observation without aspect hypotheses: nothing to correct")
             return
+        stamp_ns = _stamp_ns(msg.header.stamp)
+        if stamp_ns < self._earliest_observation_ns:
+            return
         if self._param("correct_once_per_action") and not self._awaiting_observation:
+            self._early_observations.append((stamp_ns, msg))
             return
-        if _stamp_ns(msg.header.stamp) < self._earliest_observation_ns:
-            return
+        self._correct(msg)
+
+    def _correct(self, msg: AspectObservation):
         best = msg.hypotheses[0]
         z = (int(best.aspect_type), *(int(s) for s in best.slots))
         if z[0] == 2:
@@ -112,20 +125,27 @@ class BeliefNode(Node):
 
     def _on_executed_action(self, msg: ExecutedAction):
         self._earliest_observation_ns = _stamp_ns(msg.header.stamp)
+        early = sorted((m for m in self._early_observations
+                        if m[0] >= self._earliest_observation_ns), key=lambda m: m[0])
+        self._early_observations.clear()
         if msg.action not in ACTIONS:
             self.get_logger().warning(
                 f"executed action {msg.action!r} is unknown (expected one of "
                 f"{', '.join(ACTIONS)}); belief not predicted")
             return
+        self._awaiting_observation = True
         if not msg.success:
             # The skill did not run to completion: the cube was not acted on as modelled.
             self.get_logger().info(f"{msg.action} failed ({msg.reason}); no prediction step")
-            self._awaiting_observation = True
-            return
-        self.filter.predict(msg.action)
-        self._awaiting_observation = True
-        self.step += 1
-        self._publish_belief(msg.header.stamp)
+        else:
+            self.filter.predict(msg.action)
+            self.step += 1
+            self._publish_belief(msg.header.stamp)
+        # The first frame of the new state may have overtaken this message.
+        for _, observation in early:
+            self._correct(observation)
+            if not self._awaiting_observation:
+                break
 
     def _on_reset(self, request, response):
         prior = np.asarray(request.model_prior, dtype=np.float64)
@@ -138,6 +158,7 @@ class BeliefNode(Node):
         self.step = 0
         self._awaiting_observation = True
         self._earliest_observation_ns = 0
+        self._early_observations.clear()
         self._publish_belief()
         response.success = True
         response.message = f"belief reset over {self.model_set.num_models} models"

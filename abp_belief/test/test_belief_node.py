@@ -119,11 +119,28 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
                                reference.object_marginal(), atol=1e-12)
 
+    # The two topics keep no common order: a frame of the new view that arrives before
+    # its action's message is applied right after the action's prediction.
+    z3 = models.aspect_key(models.node_aspect[true_model * STATES_PER_MODEL + 5])
+    overtaking = observation_msg(z3)
+    overtaking.header.stamp.sec = 201
+    obs_pub.publish(overtaking)
+    spin(executor, lambda: False, 0.5)
+    assert beliefs[-1].step == 3
+    late_orbit = ExecutedAction(action="ORBIT_P90", success=True, sequence=2)
+    late_orbit.header.stamp.sec = 200
+    act_pub.publish(late_orbit)
+    assert spin(executor, lambda: beliefs[-1].step == 5, 10), "overtaking frame not applied"
+    reference.predict("ORBIT_P90")
+    reference.correct(z3)
+    np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
+                               reference.object_marginal(), atol=1e-12)
+
     # Bad input is logged and ignored, and the node keeps running.
     act_pub.publish(ExecutedAction(action="DANCE", success=True))
     obs_pub.publish(observation_msg((3, 42, 1, 2)))
     spin(executor, lambda: False, 0.5)
-    assert beliefs[-1].step == 3 and proc.poll() is None
+    assert beliefs[-1].step == 5 and proc.poll() is None
 
     reset = node.create_client(ResetBelief, "/abp/reset_belief")
     assert spin(executor, reset.service_is_ready, 10)

@@ -65,6 +65,9 @@ class BagRecorder(Node):
             if self.get_parameter("record_images").value:
                 topics.update(IMAGE_TOPICS)
         self.writer = BagWriter(output, topics, self.get_parameter("storage").value)
+        # DDS matches each subscription to its publishers some time after this, so
+        # the first message per topic is logged: it says that topic is being recorded.
+        self._topics_heard = set()
         for topic, msgtype in topics.items():
             self.create_subscription(message_class(msgtype), topic,
                                      lambda data, t=topic: self._write(t, data),
@@ -73,6 +76,9 @@ class BagRecorder(Node):
 
     def _write(self, topic, data):
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
+        if topic not in self._topics_heard:
+            self._topics_heard.add(topic)
+            self.get_logger().info(f"first message on {topic}")
 
     def close(self):
         self.writer.close()

@@ -239,7 +239,9 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
         raise AssertionError(f'no joint state at t={time_s:.3f}')
 
     now = ns(t.last('joint_states').header.stamp)
-    start = now + 1_000_000_000  # 1 s of simulation time from now
+    # 3 s of simulation time ahead (0.75 s of wall time): the last joint state received
+    # may lag the simulation on a busy machine, and the trajectory must arrive before it starts.
+    start = now + 3_000_000_000
     traj = JointTrajectory()
     traj.header.stamp = to_time(start)
     traj.joint_names = ['head_tilt_joint', 'head_pan_joint']  # not the controller's order
@@ -382,7 +384,8 @@ def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processe
         assert start.state == expected_state('PUSH', 0, rel)  # slide = the initial state
         # One common start stamp for the three controllers (zero stamps would start each
         # on its own receipt, ticks apart at this speed-up, and the hands would not meet).
-        begin = ns(start.header.stamp) + 1_000_000_000
+        # 4 s of simulation time ahead (0.2 s of wall time) so that all three arrive first.
+        begin = ns(start.header.stamp) + 4_000_000_000
         for controller, msg in msgs.items():
             msg.header.stamp = to_time(begin)
             pubs[controller].publish(msg)

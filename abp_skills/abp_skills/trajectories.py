@@ -394,7 +394,12 @@ def head_pan_towards(pose, cube_xy, limit=1.6):
 @dataclass
 class OrbitTracker:
     """Closed-loop tracking of an OrbitPlan on odometry (Kanayama's unicycle law plus a
-    heading term that also acts when turning in place), then settling on the end pose."""
+    heading term that also acts when turning in place), then settling on the end pose.
+
+    Settling turns in place when only the heading is off. A unicycle cannot remove a
+    sideways error in place, so when the position is off (odometry lag, wheel slip)
+    it turns towards the end point, drives there (backwards if that is shorter), and
+    turns to the end heading."""
 
     plan: OrbitPlan
     limits: BaseLimits = field(default_factory=BaseLimits)
@@ -404,6 +409,14 @@ class OrbitTracker:
     yaw_tolerance: float = np.radians(2.0)
     position_tolerance: float = 0.02
     settle_time: float = 4.0
+    # Settling state: driving to the end point, and the settling time added for that.
+    _repositioning: bool = field(default=False, init=False, repr=False)
+    _extra_settle_time: float = field(default=0.0, init=False, repr=False)
+
+    @property
+    def settle_deadline(self):
+        """Plan time (s) at which an unsettled base is given up on."""
+        return self.plan.duration + self.settle_time + self._extra_settle_time
 
     def errors(self, t, pose):
         """(ex, ey, e_yaw) of the measured pose against the reference, robot frame."""
@@ -432,16 +445,40 @@ class OrbitTracker:
         if t >= self.plan.duration:
             if self.settled(pose):
                 return 0.0, 0.0, phase, True, True
-            if t >= self.plan.duration + self.settle_time:
+            if t >= self.settle_deadline:
                 return 0.0, 0.0, phase, True, False
-        ex, ey, eth = self.errors(t, pose)
-        v = v_ref * np.cos(eth) + self.k_x * ex
-        w = w_ref + self.k_y * v_ref * ey + self.k_theta * np.sin(eth)
         if t >= self.plan.duration:
-            # Settling: with no reference motion, steer the remaining position error
-            # (along the heading) and the heading; lateral error is left to tolerance.
-            w = self.k_theta * np.sin(eth)
+            v, w = self._settle(pose)
+        else:
+            ex, ey, eth = self.errors(t, pose)
+            v = v_ref * np.cos(eth) + self.k_x * ex
+            w = w_ref + self.k_y * v_ref * ey + self.k_theta * np.sin(eth)
         vmax = 1.2 * self.limits.linear_velocity
         wmax = 1.2 * self.limits.angular_velocity
         return (float(np.clip(v, -vmax, vmax)), float(np.clip(w, -wmax, wmax)), phase,
                 False, False)
+
+    def _settle(self, pose):
+        """(v, ω) towards the end pose: turn-drive-turn, with hysteresis on the distance."""
+        end = self.plan.end_pose()
+        offset = end[:2] - np.asarray(pose[:2], dtype=float)
+        distance = float(np.hypot(*offset))
+        # Within `enough`, the bearing and radius errors are within their tolerances.
+        enough = 0.8 * min(self.position_tolerance, self.plan.radius * self.yaw_tolerance)
+        if distance > enough and not self._repositioning:
+            self._repositioning = True
+            if not self._extra_settle_time:   # once: a base that cannot get there fails
+                self._extra_settle_time = (np.pi / self.limits.angular_velocity + 1.0
+                                           + distance / (0.5 * self.limits.linear_velocity))
+        elif distance < 0.5 * enough:
+            self._repositioning = False
+        if not self._repositioning:
+            return 0.0, self.k_theta * np.sin(wrap(end[2] - pose[2]))
+        heading_error = wrap(np.arctan2(offset[1], offset[0]) - pose[2])
+        direction = 1.0
+        if abs(heading_error) > np.pi / 2:   # the end point is behind: back up to it
+            heading_error, direction = wrap(heading_error - np.pi), -1.0
+        w = self.k_theta * heading_error
+        if abs(heading_error) > np.radians(10):
+            return 0.0, w   # face the line first, so the drive does not swing sideways
+        return direction * self.k_x * distance * np.cos(heading_error), w

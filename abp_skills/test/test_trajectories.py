@@ -183,7 +183,32 @@ def test_orbit_tracker_reports_a_base_that_does_not_move():
         if done:
             break
         t += 0.1
-    assert not ok and t == pytest.approx(plan.duration + 1.0, abs=0.11)
+    # It is given the time to drive back to the end point once, then reported.
+    assert not ok and t == pytest.approx(tracker.settle_deadline, abs=0.11)
+    assert plan.duration + 1.0 < tracker.settle_deadline < plan.duration + 20.0
+
+
+@pytest.mark.parametrize('side', [0.03, -0.05])
+def test_orbit_tracker_removes_a_sideways_error_when_settling(side):
+    """A unicycle cannot move sideways: a base knocked sideways at the end of the arc
+    turns, drives back to the end point and turns to face the cube."""
+    cube = np.array([0.4, 0.0])
+    plan = plan_orbit(np.zeros(3), cube, np.radians(-90), 0.4)
+    tracker = OrbitTracker(plan, settle_time=2.0)
+    pose, t, dt, knocked = np.zeros(3), 0.0, 0.05, False
+    while True:
+        if t >= plan.duration and not knocked:
+            pose = pose + side * np.array([-np.sin(pose[2]), np.cos(pose[2]), 0.0])
+            knocked = True
+            assert not tracker.settled(pose)
+        v, w, _, done, ok = tracker.command(t, pose)
+        if done:
+            break
+        pose, t = integrate_unicycle(pose, v, w, dt), t + dt
+    assert ok, tracker.final_errors(pose)
+    b_err, h_err, r_err = tracker.final_errors(pose)
+    assert abs(b_err) <= tracker.yaw_tolerance and abs(h_err) <= tracker.yaw_tolerance
+    assert abs(r_err) <= tracker.position_tolerance
 
 
 def test_orbit_rejects_bad_input():

@@ -72,7 +72,9 @@ mkdir -p "$log_dir"
 
 pids=()
 cleanup() {
-  trap - EXIT INT TERM
+  # A second Ctrl-C (or a signal to the whole group) must not cut the clean-up short.
+  trap - EXIT
+  trap '' INT TERM
   if [ ${#pids[@]} -gt 0 ]; then
     echo "[start_graph] stopping ${#pids[@]} processes"
     kill -INT "${pids[@]}" 2>/dev/null || true
@@ -115,9 +117,9 @@ fi
 start abp_perception artag_detector
 start abp_perception aspect_matcher "${model_args[@]}"
 start abp_belief belief "${model_args[@]}"
-for skill in orbit push lift flip; do
-  start abp_skills "${skill}_server"
-done
+# The four action servers in one process: four processes, each with its own executor
+# taking /joint_states, /odom and /clock, cost about 1.2 cores of the 2 when idle.
+start abp_skills skill_servers
 start abp_planner planner "${model_args[@]}" -p "planner_mode:=$planner" \
   -p "max_actions:=$max_actions"
 if [ -n "$record" ]; then

@@ -40,10 +40,7 @@ def generate_launch_description():
         node("abp_perception", "artag_detector"),
         node("abp_perception", "aspect_matcher", model_params),
         node("abp_belief", "belief", model_params),
-        node("abp_skills", "orbit_server"),
-        node("abp_skills", "push_server"),
-        node("abp_skills", "lift_server"),
-        node("abp_skills", "flip_server"),
+        node("abp_skills", "skill_servers"),  # all four action servers, one process
         node("abp_planner", "planner",
              {**model_params, "planner_mode": LaunchConfiguration("planner")}),
     ])

@@ -13,6 +13,7 @@ cancelled first).
 
 import argparse
 import json
+import math
 import sys
 import time
 
@@ -66,7 +67,10 @@ class Tracer:
         node.create_subscription(SimGroundTruth, "/abp/sim/ground_truth", self.on_truth, LATCHED)
 
     def on_plan(self, msg):
-        line = f"plan      {msg.action:<10} expected IG {msg.expected_information_gain:6.3f} bits"
+        gain = msg.expected_information_gain
+        scored = f"expected IG {gain:6.3f} bits" if math.isfinite(gain) else \
+            f"({msg.planner_mode}: no IG scored)"
+        line = f"plan      {msg.action:<10} {scored}"
         refused = [a for a, ok in zip(msg.candidate_actions, msg.candidate_feasible) if not ok]
         if refused:
             line += f"  (infeasible: {', '.join(refused)})"

@@ -11,6 +11,7 @@ Uses:           /abp/skills/{orbit,push,lift,flip} actions, /abp/skills/check_fe
 The decision itself is `abp_planner.planner`; this module only moves messages.
 """
 
+import queue
 import sys
 import threading
 import time
@@ -19,11 +20,12 @@ import numpy as np
 import rclpy
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
 from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.duration import Duration
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
+from rclpy.task import Future
 from visualization_msgs.msg import MarkerArray
 
 from abp_belief import io as model_io
@@ -88,11 +90,20 @@ class PlannerNode(Node):
         self._executed_pub = self.create_publisher(ExecutedAction, "/abp/executed_action",
                                                    RELIABLE)
         self._markers_pub = self.create_publisher(MarkerArray, "/abp/markers", LATCHED)
+        # rclpy 7.1's ActionClient registers a request only after sending it, so a reply
+        # processed by another executor thread in between is dropped ("Ignoring unexpected
+        # goal response", ros2/rclpy#1123): the planner then took a goal the server had
+        # accepted and run for a rejection. Requests are therefore made on the executor,
+        # in the clients' own mutually exclusive group, where no reply can be taken meanwhile.
+        self._skill_group = MutuallyExclusiveCallbackGroup()
         self._skill_clients = {
             name: ActionClient(self, action_type, f"/abp/skills/{name}",
-                               callback_group=self._group)
+                               callback_group=self._skill_group)
             for name, action_type in SKILL_TYPES.items()
         }
+        self._skill_calls = queue.SimpleQueue()
+        self._skill_call_trigger = self.create_guard_condition(
+            self._make_skill_calls, callback_group=self._skill_group)
         self._feasibility = self.create_client(CheckFeasibility, "/abp/skills/check_feasibility",
                                                callback_group=self._group)
         self._reset = self.create_client(ResetBelief, "/abp/reset_belief",
@@ -318,16 +329,17 @@ class PlannerNode(Node):
         if not client.wait_for_server(timeout_sec=5.0):
             return False, f"skill server /abp/skills/{skill} not available", Duration().to_msg()
         started = self.get_clock().now()
-        send = self._wait_future(client.send_goal_async(make_goal()), 10.0)
+        send = self._wait_future(self._skill_request(lambda: client.send_goal_async(make_goal())),
+                                 10.0)
         if send is None or not send.accepted:
             return False, f"{skill} goal rejected", Duration().to_msg()
-        result_future = send.get_result_async()
+        result_future = self._skill_request(send.get_result_async)
         deadline = time.monotonic() + timeout
         while not result_future.done():
             if goal_handle.is_cancel_requested or time.monotonic() > deadline:
                 why = "cancelled" if goal_handle.is_cancel_requested else \
                     f"timed out after {timeout:.0f} s"
-                self._wait_future(send.cancel_goal_async(), 5.0)
+                self._wait_future(self._skill_request(send.cancel_goal_async), 5.0)
                 self._wait_future(result_future, 10.0)
                 return False, f"{skill} {why}", (self.get_clock().now() - started).to_msg()
             time.sleep(0.02)
@@ -336,6 +348,27 @@ class PlannerNode(Node):
         return bool(result.success), result.reason, result.duration
 
     # -- helpers ------------------------------------------------------------------
+    def _skill_request(self, make_request):
+        """A future of `make_request()` (an ActionClient *_async call), made on the
+        executor inside the skill clients' callback group (see __init__)."""
+        outer = Future()
+        self._skill_calls.put((make_request, outer))
+        self._skill_call_trigger.trigger()
+        return outer
+
+    def _make_skill_calls(self):
+        while True:
+            try:
+                make_request, outer = self._skill_calls.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                inner = make_request()
+            except Exception as error:  # noqa: BLE001 -- handed to the waiting thread
+                outer.set_exception(error)
+                continue
+            inner.add_done_callback(lambda done, outer=outer: outer.set_result(done.result()))
+
     def _wait_future(self, future, timeout):
         event = threading.Event()
         future.add_done_callback(lambda _: event.set())

@@ -4,8 +4,10 @@
 
 Messages are published serialized, as recorded, with the QoS each topic uses in
 the graph. --rate 1 keeps the recorded timing; --fast publishes as fast as
-the subscribers take it. --wait-for waits until each named topic has a
-subscriber before the first message is sent.
+the subscribers take it. DDS keeps the order within a topic only, so with
+--fast a subscriber that falls behind may take messages of two topics out of
+their recorded order; replay at a rate when that order matters. --wait-for
+waits until each named topic has a subscriber before the first message is sent.
 """
 
 import argparse

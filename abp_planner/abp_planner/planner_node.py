@@ -344,6 +344,8 @@ class PlannerNode(Node):
                 return False, f"{skill} {why}", (self.get_clock().now() - started).to_msg()
             time.sleep(0.02)
         response = result_future.result()
+        if response is None:
+            return False, f"{skill} result lost", (self.get_clock().now() - started).to_msg()
         result = response.result
         return bool(result.success), result.reason, result.duration
 
@@ -367,7 +369,13 @@ class PlannerNode(Node):
             except Exception as error:  # noqa: BLE001 -- handed to the waiting thread
                 outer.set_exception(error)
                 continue
-            inner.add_done_callback(lambda done, outer=outer: outer.set_result(done.result()))
+            inner.add_done_callback(lambda done, outer=outer: self._forward(done, outer))
+
+    def _forward(self, done, outer):
+        error = done.exception()
+        if error is not None:
+            self.get_logger().error(f"skill request failed: {error}")
+        outer.set_result(None if error is not None else done.result())
 
     def _wait_future(self, future, timeout):
         event = threading.Event()

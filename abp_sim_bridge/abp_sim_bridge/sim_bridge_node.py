@@ -43,7 +43,6 @@ from rcl_interfaces.msg import (
     ParameterDescriptor,
     SetParametersResult,
 )
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -57,6 +56,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
+from abp_belief.node_main import run_node
 from abp_description import camera_intrinsics
 from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import SimGroundTruth
@@ -112,7 +112,11 @@ class _Frame:
 class SimBridgeNode(Node):
     def __init__(self):
         super().__init__('sim_bridge')
-        self._declare_parameters()
+        try:
+            self._declare_parameters()
+        except rclpy.exceptions.InvalidParameterTypeException as error:
+            raise ValueError(f'{error} (write a double with a decimal point, e.g. '
+                             'speedup:=10.0, and integer arrays as [1,2,3])') from error
         self.config = cfg.build(self._values())
         self.kin = RobotKinematics()
         self.intrinsics = camera_intrinsics()
@@ -462,34 +466,14 @@ class SimBridgeNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    try:
-        node = SimBridgeNode()
-    except (ValueError, rclpy.exceptions.InvalidParameterValueException) as error:
-        print(f'[sim_bridge] configuration error: {error}', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    except rclpy.exceptions.InvalidParameterTypeException as error:
-        print(f'[sim_bridge] configuration error: {error} (write a double with a decimal '
-              'point, e.g. speedup:=10.0, and integer arrays as [1,2,3])', file=sys.stderr)
-        rclpy.try_shutdown()
-        return 2
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception:
-        # Ctrl-C shuts the context down under a running callback; only a
-        # failure while the context is still valid is a real error.
-        if rclpy.ok():
-            raise
-    finally:
-        node.stop()
-        failed = node.failed
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 1 if failed else 0
+    failed = []
 
+    def stop_simulation(node):
+        node.stop()
+        failed.append(node.failed)
+
+    code = run_node('sim_bridge', SimBridgeNode, args, on_exit=stop_simulation)
+    return 1 if any(failed) else code
 
 if __name__ == '__main__':
     sys.exit(main())

@@ -15,7 +15,7 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 VENV="$REPO/.venv"
 REQ_DIR="$REPO/requirements"
 ROS_DISTRO_DIR="/opt/ros/jazzy"
-PACKAGES=(abp_msgs abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge
+PACKAGES=(abp_msgs abp_common abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge
           abp_bringup)
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }

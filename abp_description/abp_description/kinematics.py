@@ -11,6 +11,8 @@ import numpy as np
 import pinocchio as pin
 
 from abp_description import urdf_path
+from abp_description.controllers import HEAD_JOINTS
+from abp_description.frames import base_to_world
 
 CAMERA_FRAME = 'camera_optical_frame'
 HAND_FRAMES = {'left': 'left_hand_link', 'right': 'right_hand_link'}
@@ -122,11 +124,41 @@ class RobotKinematics:
         return jac[:, self._idx_v]
 
 
-def base_to_world(base_pose):
-    """4x4 world pose of base_link from the planar base pose (x, y, yaw)."""
-    x, y, yaw = (float(v) for v in base_pose)
-    c, s = np.cos(yaw), np.sin(yaw)
-    out = np.eye(4)
-    out[:2, :2] = [[c, -s], [s, c]]
-    out[0, 3], out[1, 3] = x, y
-    return out
+def look_at(kin, q, target_in_base, iterations=12):
+    """Head pan/tilt (within limits) pointing the camera's optical axis at `target_in_base`
+    (a point in base_link). Returns (q with the head joints set, angular error in rad).
+
+    The one head-aiming rule of the project: the skills, the simulator and the benchmark
+    scenes all aim the camera with it."""
+    q = np.asarray(q, dtype=float).copy()
+    target = np.asarray(target_in_base, dtype=float)
+    i_pan, i_tilt = kin.joint_index(HEAD_JOINTS[0]), kin.joint_index(HEAD_JOINTS[1])
+
+    def direction_in_camera(q):
+        cam = kin.camera_pose(q)
+        return cam[:3, :3].T @ (target - cam[:3, 3])  # optical frame: x right, y down, z ahead
+
+    err = np.pi
+    for _ in range(iterations):
+        d = direction_in_camera(q)
+        if d[2] <= 1e-9:
+            # Behind the camera: turn towards it roughly first.
+            q[i_pan] += 0.5 * np.sign(-d[0]) if abs(d[0]) > 1e-9 else 0.5
+        else:
+            # Positive pan turns the view left (-x), positive tilt turns it down (+y).
+            q[i_pan] -= np.arctan2(d[0], d[2])
+            q[i_tilt] += np.arctan2(d[1], np.hypot(d[0], d[2]))
+        q = kin.clip(q)
+        d = direction_in_camera(q)
+        err = float(np.arccos(np.clip(d[2] / max(np.linalg.norm(d), 1e-12), -1, 1)))
+        if err < 1e-4:
+            break
+    return q, err
+
+
+def look_at_world(kin, q, base_pose, target_in_world, iterations=12):
+    """look_at for a world point seen from the planar base pose (x, y, yaw)."""
+    world_to_base = np.linalg.inv(base_to_world(base_pose))
+    target = world_to_base[:3, :3] @ np.asarray(target_in_world, dtype=float) \
+        + world_to_base[:3, 3]
+    return look_at(kin, q, target, iterations)

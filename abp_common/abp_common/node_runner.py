@@ -1,0 +1,52 @@
+"""The `main()` every abp node shares: init, build, spin, shut down cleanly.
+
+A node whose construction fails on a bad parameter or file prints
+`[name] configuration error: ...` and exits with code 2 instead of a traceback (so a
+respawning launcher does not loop on a configuration that can never work); Ctrl-C ends
+the spin quietly, also when it shuts the context down under a running callback;
+`on_exit(node)` runs before the node is destroyed.
+"""
+
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+CONFIGURATION_ERROR_EXIT_CODE = 2
+
+
+def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleThreadedExecutor,
+             on_exit=None):
+    """Run the node `make_node()` builds until shutdown; returns the process exit code.
+
+    `config_errors`: extra exception types that mean a bad configuration (besides
+    ValueError and rclpy's InvalidParameterValueException). `make_executor` is called
+    after rclpy.init (an executor needs the context)."""
+    rclpy.init(args=args)
+    try:
+        node = make_node()
+    except (ValueError, rclpy.exceptions.InvalidParameterValueException,
+            *config_errors) as error:
+        print(f'[{name}] configuration error: {error}', file=sys.stderr)
+        rclpy.try_shutdown()
+        return CONFIGURATION_ERROR_EXIT_CODE
+    executor = make_executor()
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except Exception:
+        # Ctrl-C shuts the context down under a running callback; only a
+        # failure while the context is still valid is a real error.
+        if rclpy.ok():
+            raise
+    finally:
+        if on_exit is not None:
+            on_exit(node)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+__all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'run_node']

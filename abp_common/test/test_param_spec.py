@@ -2,6 +2,7 @@
 
 import pytest
 
+from abp_common.names import absolute, skill_action, trajectory_topic
 from abp_common.param_spec import (
     DOUBLE,
     INT,
@@ -12,7 +13,6 @@ from abp_common.param_spec import (
     defaults,
     probability,
 )
-from abp_common.names import absolute, skill_action, trajectory_topic
 
 SPECS = (
     ParamSpec('rate', DOUBLE, 50.0, 'Tick rate.', (1.0, 1000.0)),

@@ -23,7 +23,6 @@ setup(
         'console_scripts': [
             'belief = abp_belief.belief_node:main',
             'models = abp_belief.models_cli:main',
-            'bench_filter = abp_belief.bench_filter:main',
         ],
     },
 )

@@ -16,12 +16,11 @@ setup(
     maintainer_email='abp-maintainers@example.com',
     description=(
         'The Active Belief Planner (paper Alg. 3), '
-        'its variants, the Recognize action and the benchmarks.'
+        'its variants and the Recognize action.'
     ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
-            'benchmark = abp_planner.benchmark:main',
             'planner = abp_planner.planner_node:main',
         ],
     },

@@ -26,7 +26,6 @@ setup(
             'push_server = abp_skills.skills_node:push_main',
             'lift_server = abp_skills.skills_node:lift_main',
             'flip_server = abp_skills.skills_node:flip_main',
-            'skills_benchmark = abp_skills.benchmark:main',
         ],
     },
 )

@@ -1,90 +1,62 @@
 """ROS 2 wiring of the Bayes filter: the `belief` node.
 
-Subscribes:  /abp/aspect_observation (abp_msgs/AspectObservation)
-             /abp/executed_action    (abp_msgs/ExecutedAction)
-Publishes:   /abp/belief             (abp_msgs/Belief, transient local: late joiners get the latest)
-Services:    /abp/reset_belief       (abp_msgs/ResetBelief)
+Subscribes:  abp/aspect_observation (abp_msgs/AspectObservation)
+             abp/executed_action    (abp_msgs/ExecutedAction)
+Publishes:   abp/belief             (abp_msgs/Belief, latched: late joiners get the latest)
+Services:    abp/reset_belief       (abp_msgs/ResetBelief)
 
-The science lives in `abp_belief.filter` / `abp_belief.modelset`; this module only
-converts messages and parameters.
+(Names are relative: /abp/... without a namespace.) The science lives in
+`abp_belief.filter` / `abp_belief.modelset`, the choice of which observation corrects
+in `abp_belief.evidence_gate`; this module only converts messages and parameters.
 """
 
 import array
-import collections
 import sys
 
 import numpy as np
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
+from abp_common import names, qos
+from abp_common.node_runner import run_node
+from abp_common.parameters import declare_all
 from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
 from abp_msgs.srv import ResetBelief
 
-from . import io as model_io
+from .belief_config import BELIEF_SPECS
 from .cube import ACTIONS, STATES_PER_MODEL
+from .evidence_gate import HELD_OBSERVATIONS, EvidenceGate
 from .filter import BeliefFilter, BeliefUpdateError
-from .model_set_params import (
-    MODEL_SET_PARAMETERS,
-    declare_model_set_parameters,
-    integer_range,
-    load_model_set,
-    probability_range,
-)
-from .node_main import run_node
+from .model_file import ModelFileError, fingerprint
+from .model_set_config import MODEL_SET_PARAMETERS, MODEL_SET_SPECS, model_set_from_values
 
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 # Deep enough that a replay or a busy machine does not overwrite unread inputs.
-OBSERVATION_QUEUE_DEPTH = 100
-INPUTS = QoSProfile(depth=OBSERVATION_QUEUE_DEPTH, reliability=QoSReliabilityPolicy.RELIABLE)
+INPUTS = qos.reliable(HELD_OBSERVATIONS)
 
 
 class BeliefNode(Node):
     def __init__(self):
-        super().__init__("belief")
-        self._declare_parameters()
-        self.model_set = load_model_set(self)
+        super().__init__('belief')
+        values = declare_all(self, MODEL_SET_SPECS + BELIEF_SPECS)
+        self.model_set = model_set_from_values(values)
         self.filter = BeliefFilter(self.model_set)
-        self.model_set_id = model_io.fingerprint(self.model_set)
+        self.model_set_id = fingerprint(self.model_set)
         self.step = 0
-        # Correct once per action cycle: frames of one unchanged view are not
-        # independent evidence, so after a correction further observations wait
-        # for the next executed action (or a reset).
-        self._awaiting_observation = True
-        # Frames taken before the last action ended show the old state: skip them.
-        self._earliest_observation_ns = 0
-        # Observations and executed actions come on two topics, whose relative order
-        # DDS does not keep. Frames stamped after the last action that arrive while
-        # no correction is due wait here, in case the next action's message arrives
-        # after the frames that already show its outcome.
-        self._early_observations = collections.deque(maxlen=OBSERVATION_QUEUE_DEPTH)
-        self._belief_pub = self.create_publisher(Belief, "/abp/belief", LATCHED)
-        self.create_subscription(AspectObservation, "/abp/aspect_observation",
+        self._gate = EvidenceGate(values['correct_once_per_action'])
+        self._belief_pub = self.create_publisher(Belief, names.BELIEF, qos.LATCHED)
+        self.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
                                  self._on_observation, INPUTS)
-        self.create_subscription(ExecutedAction, "/abp/executed_action",
+        self.create_subscription(ExecutedAction, names.EXECUTED_ACTION,
                                  self._on_executed_action, INPUTS)
-        self.create_service(ResetBelief, "/abp/reset_belief", self._on_reset)
+        self.create_service(ResetBelief, names.RESET_BELIEF, self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
         self.get_logger().info(
-            f"belief over {self.model_set.num_models} models "
-            f"({self.model_set.num_nodes} aspect nodes, {len(self.model_set.aspects)} aspects)")
+            f'belief over {self.model_set.num_models} models '
+            f'({self.model_set.num_nodes} aspect nodes, {len(self.model_set.aspects)} aspects)')
         self._publish_belief()
 
     # -- parameters ---------------------------------------------------------------
-    def _declare_parameters(self):
-        declare_model_set_parameters(self)
-        self.declare_parameter("top_k", 10, ParameterDescriptor(
-            description="Number of objects and aspect nodes listed in /abp/belief.",
-            integer_range=integer_range(1, 1000)))
-        self.declare_parameter("node_floor", 1e-12, ParameterDescriptor(
-            description="Nodes below this fraction of the most probable node are left out "
-            "of the sparse belief in /abp/belief (the planner plans on the rest).",
-            floating_point_range=probability_range(1e-3)))
-        self.declare_parameter("correct_once_per_action", True, ParameterDescriptor(
-            description="Use only the first observation after each executed action (true), "
-            "or every observation message (false)."))
-
     def _param(self, name):
         return self.get_parameter(name).value
 
@@ -93,21 +65,21 @@ class BeliefNode(Node):
             if param.name in MODEL_SET_PARAMETERS:
                 return SetParametersResult(
                     successful=False,
-                    reason=f"{param.name} defines the model set; restart the node to change it")
+                    reason=f'{param.name} defines the model set; restart the node to change it')
         return SetParametersResult(successful=True)
+
+    def _after_set_parameters(self, params):
+        for param in params:
+            if param.name == 'correct_once_per_action':
+                self._gate.once_per_action = bool(param.value)
 
     # -- callbacks ----------------------------------------------------------------
     def _on_observation(self, msg: AspectObservation):
         if not msg.hypotheses:
-            self.get_logger().debug("observation without aspect hypotheses: nothing to correct")
+            self.get_logger().debug('observation without aspect hypotheses: nothing to correct')
             return
-        stamp_ns = _stamp_ns(msg.header.stamp)
-        if stamp_ns < self._earliest_observation_ns:
-            return
-        if self._param("correct_once_per_action") and not self._awaiting_observation:
-            self._early_observations.append((stamp_ns, msg))
-            return
-        self._correct(msg)
+        if self._gate.offer(_stamp_ns(msg.header.stamp), msg):
+            self._correct(msg)
 
     def _correct(self, msg: AspectObservation):
         best = msg.hypotheses[0]
@@ -117,34 +89,31 @@ class BeliefNode(Node):
         try:
             self.filter.correct(z)
         except (ValueError, BeliefUpdateError) as error:
-            self.get_logger().warning(f"observation {z} ignored: {error}")
+            self.get_logger().warning(f'observation {z} ignored: {error}')
             return
-        self._awaiting_observation = False
+        self._gate.corrected()
         self.step += 1
         self._publish_belief(msg.header.stamp)
 
     def _on_executed_action(self, msg: ExecutedAction):
-        self._earliest_observation_ns = _stamp_ns(msg.header.stamp)
-        early = sorted((m for m in self._early_observations
-                        if m[0] >= self._earliest_observation_ns), key=lambda m: m[0])
-        self._early_observations.clear()
-        if msg.action not in ACTIONS:
+        known = msg.action in ACTIONS
+        early = self._gate.action_executed(_stamp_ns(msg.header.stamp), known)
+        if not known:
             self.get_logger().warning(
-                f"executed action {msg.action!r} is unknown (expected one of "
-                f"{', '.join(ACTIONS)}); belief not predicted")
+                f'executed action {msg.action!r} is unknown (expected one of '
+                f'{", ".join(ACTIONS)}); belief not predicted')
             return
-        self._awaiting_observation = True
         if not msg.success:
             # The skill did not run to completion: the cube was not acted on as modelled.
-            self.get_logger().info(f"{msg.action} failed ({msg.reason}); no prediction step")
+            self.get_logger().info(f'{msg.action} failed ({msg.reason}); no prediction step')
         else:
             self.filter.predict(msg.action)
             self.step += 1
             self._publish_belief(msg.header.stamp)
         # The first frame of the new state may have overtaken this message.
-        for _, observation in early:
+        for observation in early:
             self._correct(observation)
-            if not self._awaiting_observation:
+            if not self._gate.awaiting_observation:
                 break
 
     def _on_reset(self, request, response):
@@ -153,22 +122,21 @@ class BeliefNode(Node):
             self.filter = BeliefFilter(self.model_set, prior if prior.size else None)
         except ValueError as error:
             response.success = False
-            response.message = f"reset refused: {error}"
+            response.message = f'reset refused: {error}'
             return response
         self.step = 0
-        self._awaiting_observation = True
-        self._earliest_observation_ns = 0
-        self._early_observations.clear()
+        self._gate.reset()
         self._publish_belief()
         response.success = True
-        response.message = f"belief reset over {self.model_set.num_models} models"
+        response.message = f'belief reset over {self.model_set.num_models} models'
         return response
 
     # -- output -------------------------------------------------------------------
     def _publish_belief(self, stamp=None):
-        top_k = self._param("top_k")
+        top_k = self._param('top_k')
+        belief = self.filter.belief
         marginal = self.filter.object_marginal()
-        order = np.argsort(-marginal, kind="stable")[:top_k]
+        order = np.argsort(-marginal, kind='stable')[:top_k]
         msg = Belief()
         msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
         msg.step = self.step
@@ -176,19 +144,19 @@ class BeliefNode(Node):
         msg.probabilities = marginal[order].tolist()
         msg.total_models = self.model_set.num_models
         msg.entropy = self.filter.entropy()
-        node_count = min(top_k, self.filter.belief.size)
-        top_nodes = np.argpartition(-self.filter.belief, node_count - 1)[:node_count]
-        top_nodes = top_nodes[np.argsort(-self.filter.belief[top_nodes], kind="stable")]
+        node_count = min(top_k, belief.size)
+        top_nodes = np.argpartition(-belief, node_count - 1)[:node_count]
+        top_nodes = top_nodes[np.argsort(-belief[top_nodes], kind='stable')]
         for node in top_nodes:
             model, state = divmod(int(node), STATES_PER_MODEL)
             msg.top_nodes.append(AspectNodeBelief(
                 model_index=model, object_id=self.model_set.names[model], state=state,
-                probability=float(self.filter.belief[node])))
-        floor = self._param("node_floor")
-        live = np.flatnonzero(self.filter.belief >= floor * self.filter.belief.max())
+                probability=float(belief[node])))
+        floor = self._param('node_floor')
+        live = np.flatnonzero(belief >= floor * belief.max())
         # array.array from raw bytes: far faster than Python lists for 70k-node beliefs.
-        msg.node_indices = array.array("I", live.astype(np.uint32).tobytes())
-        msg.node_probabilities = array.array("d", self.filter.belief[live].tobytes())
+        msg.node_indices = array.array('I', live.astype(np.uint32).tobytes())
+        msg.node_probabilities = array.array('d', belief[live].tobytes())
         msg.node_floor = floor
         msg.model_set_id = self.model_set_id
         self._belief_pub.publish(msg)
@@ -199,8 +167,8 @@ def _stamp_ns(stamp):
 
 
 def main(args=None):
-    return run_node("belief", BeliefNode, args, config_errors=(model_io.ModelFileError,))
+    return run_node('belief', BeliefNode, args, config_errors=(ModelFileError,))
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -10,6 +10,9 @@ import itertools
 
 import numpy as np
 
+from abp_description.frames import rot_z_deg
+
+# The action vocabulary (abp_msgs/ExecutedAction carries the same names as constants).
 ACTIONS = ("ORBIT_P45", "ORBIT_M45", "ORBIT_P90", "ORBIT_M90", "ORBIT_180", "PUSH", "LIFT", "FLIP")
 ACTION_INDEX = {name: i for i, name in enumerate(ACTIONS)}
 NOMINAL_DURATION_S = {"ORBIT_P45": 20.0, "ORBIT_M45": 20.0, "ORBIT_P90": 30.0, "ORBIT_M90": 30.0,
@@ -65,11 +68,6 @@ def rot_y(deg: float) -> np.ndarray:
     return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
 
 
-def rot_z(deg: float) -> np.ndarray:
-    c, s = _cos_sin(deg)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
 def _cos_sin(deg: float) -> tuple[float, float]:
     # Exact zeros/ones for multiples of 90 deg so that state matching stays crisp.
     rad = np.deg2rad(deg)
@@ -97,7 +95,7 @@ CUBE_ROTATIONS = _cube_group()                                        # (24, 3, 
 # R_UP[f]: first group element taking body face f to +z.
 R_UP = np.array([next(q for q in CUBE_ROTATIONS if np.allclose(q @ n, [0, 0, 1]))
                  for n in FACE_NORMALS])                              # (6, 3, 3)
-STATE_ROTATIONS = np.array([rot_z(45.0 * (s % NUM_YAWS)) @ R_UP[s // NUM_YAWS]
+STATE_ROTATIONS = np.array([rot_z_deg(45.0 * (s % NUM_YAWS)) @ R_UP[s // NUM_YAWS]
                             for s in range(STATES_PER_MODEL)])        # (48, 3, 3) body -> V
 
 
@@ -187,16 +185,16 @@ def nominal_rotation(action, mass_index, state) -> np.ndarray:
     name = ACTIONS[action_index(action)]
     s = _check_state(state)
     if name in ORBIT_STEPS:
-        return rot_z(45.0 * ORBIT_STEPS[name])
+        return rot_z_deg(45.0 * ORBIT_STEPS[name])
     if STATE_YAW[s] % 2 == 1:
         return np.eye(3)
     d = mass_direction(mass_index, s)
     if name == "PUSH":
         # The heavy side drags, the light side advances.
         if _is(d, [0, 1, 0]):
-            return rot_z(-45.0)
+            return rot_z_deg(-45.0)
         if _is(d, [0, -1, 0]):
-            return rot_z(45.0)
+            return rot_z_deg(45.0)
         return np.eye(3)
     if name == "LIFT":
         if _is(d, [0, 0, 1]):

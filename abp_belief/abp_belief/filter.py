@@ -88,7 +88,8 @@ class BeliefFilter:
 
 
 def entropy_bits(p) -> float:
-    """Shannon entropy (bits) of a distribution; zero entries contribute 0."""
+    """Shannon entropy (bits) of a non-negative vector, normalised here (the planner's
+    lookahead passes unnormalised masses); zero entries contribute 0."""
     p = np.asarray(p, dtype=np.float64)
-    nz = p[p > 0.0]
+    nz = p[p > 0.0] / p.sum()
     return float(-(nz * np.log2(nz)).sum())

@@ -15,7 +15,7 @@ from collections import Counter
 
 import numpy as np
 
-from . import io, population
+from . import model_file, population
 from .cube import MAX_TAGS, MIN_TAGS
 
 SETS = ("full", "random", "robot", "visual")
@@ -99,7 +99,7 @@ def main(argv=None) -> int:
     which = args.which or "full"
     try:
         if args.load:
-            model_set = io.load(args.load)
+            model_set = model_file.load(args.load)
             description = f"loaded from {args.load}"
         elif which == "full":
             model_set = population.full_set(args.tags)
@@ -114,12 +114,12 @@ def main(argv=None) -> int:
         else:
             model_set = population.robot_set(seed=args.seed, n_tags=args.tags)
             description = f"robot (seed {args.seed})"
-    except (ValueError, io.ModelFileError) as exc:
+    except (ValueError, model_file.ModelFileError) as exc:
         return _usage_error(parser, str(exc))
 
     if args.out:
         try:
-            io.save(model_set, args.out)
+            model_file.save(model_set, args.out)
         except OSError as exc:
             print(f"{parser.prog}: error: cannot write {args.out}: {exc.strerror or exc}",
                   file=sys.stderr)

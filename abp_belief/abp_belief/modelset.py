@@ -13,6 +13,8 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sp
 
+from abp_description.frames import rot_z_deg
+
 from . import cube
 from .cube import ACTIONS, NUM_MASS_VARIANTS, STATES_PER_MODEL
 from .observation import ObservationModel, ObservationParams
@@ -82,15 +84,15 @@ def build_outcome_tables(params: TransitionParams | None = None):
                 if name in cube.ORBIT_STEPS:
                     k = cube.ORBIT_STEPS[name]
                     outcomes = [(q, 1.0 - p.p_orbit_slip),
-                                (cube.rot_z(45.0 * (k + 1)), p.p_orbit_slip / 2),
-                                (cube.rot_z(45.0 * (k - 1)), p.p_orbit_slip / 2)]
+                                (rot_z_deg(45.0 * (k + 1)), p.p_orbit_slip / 2),
+                                (rot_z_deg(45.0 * (k - 1)), p.p_orbit_slip / 2)]
                 elif cube.STATE_YAW[s] % 2 == 1:
                     outcomes = [(eye, 1.0)]                            # no face contact
                 elif name == "PUSH":
                     nb = p.p_push_neighbour
                     if np.allclose(q, eye):                            # slides
-                        outcomes = [(eye, 1.0 - nb), (cube.rot_z(45.0), nb / 2),
-                                    (cube.rot_z(-45.0), nb / 2)]
+                        outcomes = [(eye, 1.0 - nb), (rot_z_deg(45.0), nb / 2),
+                                    (rot_z_deg(-45.0), nb / 2)]
                     else:                                              # pivots; neighbour = reverse
                         outcomes = [(q, 1.0 - fail[name] - nb), (eye, fail[name]), (q.T, nb)]
                 else:

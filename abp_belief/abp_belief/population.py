@@ -133,11 +133,11 @@ def model_set_from_config(model_set="robot", model_set_size=30, n_tags=7, seed=0
     """The model set every node builds from the same parameters (belief, planner,
     aspect matcher, sim bridge): a file when `model_file` is set, else a generated set.
 
-    Raises ValueError for an unknown set, or io.ModelFileError for a bad file.
+    Raises ValueError for an unknown set, or model_file.ModelFileError for a bad file.
     """
     if model_file:
-        from . import io as model_io  # io imports modelset only: no cycle
-        return model_io.load(model_file)
+        from .model_file import load  # model_file imports modelset only: no cycle
+        return load(model_file)
     if model_set == "robot":
         return robot_set(seed=seed, n_tags=n_tags, **model_kwargs)
     if model_set == "random":

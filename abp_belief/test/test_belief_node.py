@@ -11,12 +11,12 @@ rclpy = pytest.importorskip("rclpy")
 ament_index = pytest.importorskip("ament_index_python.packages")
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.filter import BeliefFilter  # noqa: E402
-from abp_belief.io import fingerprint  # noqa: E402
+from abp_belief.model_file import fingerprint  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
+from abp_common.qos import LATCHED, RELIABLE  # noqa: E402
 from abp_msgs.msg import (  # noqa: E402
     AspectHypothesis,
     AspectObservation,
@@ -25,9 +25,6 @@ from abp_msgs.msg import (  # noqa: E402
 )
 from abp_msgs.srv import ResetBelief  # noqa: E402
 
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 SEED = 3
 
 
@@ -96,7 +93,7 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     spin(executor, lambda: False, 0.5)
     assert beliefs[-1].step == 1
 
-    orbit = ExecutedAction(action="ORBIT_P90", success=True, sequence=1)
+    orbit = ExecutedAction(action=ExecutedAction.ORBIT_P90, success=True, sequence=1)
     orbit.header.stamp.sec = 100
     act_pub.publish(orbit)
     assert spin(executor, lambda: beliefs[-1].step == 2, 10), "action not applied"
@@ -127,7 +124,7 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     obs_pub.publish(overtaking)
     spin(executor, lambda: False, 0.5)
     assert beliefs[-1].step == 3
-    late_orbit = ExecutedAction(action="ORBIT_P90", success=True, sequence=2)
+    late_orbit = ExecutedAction(action=ExecutedAction.ORBIT_P90, success=True, sequence=2)
     late_orbit.header.stamp.sec = 200
     act_pub.publish(late_orbit)
     assert spin(executor, lambda: beliefs[-1].step == 5, 10), "overtaking frame not applied"

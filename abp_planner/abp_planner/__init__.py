@@ -1,6 +1,9 @@
-"""Active Belief Planner (Ruiken et al., Alg. 3), its variants and benchmarks.
+"""Active Belief Planner (Ruiken et al., Alg. 3) and its variants.
 
 Plain Python science modules, no rclpy: ``planner`` (action selection),
-``simulator`` (the paper's model-sampled simulation protocol) and
-``benchmark`` (the CLI that reproduces Tables II/IV and Fig. 3).
+``simulator`` (the paper's model-sampled simulation protocol), ``stopping``
+(when to stop), ``episode`` (one Recognize episode: stop, re-plan, retry, wait
+for evidence) and ``planner_config`` (the planner node's parameter table).
+``planner_node`` is the ROS wiring, ``markers`` builds its RViz markers. The
+benchmarks live in ``abp_bench``.
 """

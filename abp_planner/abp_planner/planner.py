@@ -1,10 +1,11 @@
 """Active Belief Planner (Ruiken et al., Alg. 3) and its variants.
 
 Plain NumPy, no rclpy. Every planner exposes
-``choose(belief_filter, feasible=None) -> Decision`` where ``belief_filter`` is
-an ``abp_belief.filter.BeliefFilter`` (only ``.belief`` is read, never changed)
-and ``feasible(action_name) -> bool`` is the motion planner's verdict
-(``None``: everything is feasible). Build one with ``make_planner(name, ...)``.
+``choose(belief, feasible=None) -> Decision`` where ``belief`` is the (N,)
+node belief (or anything with a ``.belief`` array, e.g. a
+``abp_belief.filter.BeliefFilter``; it is read, never changed) and
+``feasible(action_name) -> bool`` is the motion planner's verdict (``None``:
+everything is feasible). Build one with ``make_planner(name, ...)``.
 
 Conventions (docs/MODEL.md, docs/BELIEF_API.md): node = model * 48 + state,
 ``node_aspect`` maps a node to its aspect row, the observation likelihood
@@ -24,7 +25,9 @@ unnormalised object posterior for an expected observation ``z`` is the row
 Nodes below the threshold contribute ``H(o_t)`` (Alg. 3 line 16).
 
 Multi-ply lookahead, the cost-aware score and the tie rule are described on
-``ActiveBeliefPlanner`` and ``TIE_TOLERANCE_BITS``.
+``ActiveBeliefPlanner`` and ``TIE_TOLERANCE_BITS``; the α boundary on
+``ALPHA_BOUNDARY_REL_EPS``; bounded planning time (anytime iterative
+deepening) on ``ActiveBeliefPlanner.choose``.
 
 Support floor: nodes whose belief is below ``support_floor · max bel``
 (default 1e-12) are left out of the prediction. Their mass is numerically
@@ -40,6 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abp_belief.cube import ACTIONS, NOMINAL_DURATION_S, STATES_PER_MODEL
+from abp_belief.filter import entropy_bits
 
 SUPPORT_FLOOR = 1e-12
 # Expected gains closer than this are ties, resolved towards the shorter action.
@@ -49,13 +53,22 @@ SUPPORT_FLOOR = 1e-12
 # argmax then chases those crumbs with long ORBITs while the cheap ±45° step
 # that enables the decisive action is never taken.
 TIE_TOLERANCE_BITS = 1e-3
+# Alg. 3 line 8 keeps a predicted node iff bel⁻(x') > α·max bel⁻. With the default
+# p_fail_lift = p_fail_flip = α = 0.1, the failed-LIFT/FLIP node of an eccentric
+# twin sits *exactly* at α·max in exact arithmetic, so float round-off decided the
+# strict test and gains jumped by up to 0.12 bits between runs. A node must now
+# exceed the threshold by this relative margin: nodes within 1e-9 of the
+# boundary are excluded, as exact arithmetic with the strict ">" excludes them.
+ALPHA_BOUNDARY_REL_EPS = 1e-9
 
 
-def entropy_bits(p: np.ndarray) -> float:
-    """Entropy (bits) of a non-negative vector, normalised here."""
-    total = p.sum()
-    q = p[p > 0] / total
-    return float(-(q * np.log2(q)).sum())
+def above_alpha(mass: np.ndarray, peak, alpha: float) -> np.ndarray:
+    """Alg. 3's candidate test ``mass > α·peak`` with the deterministic boundary."""
+    return mass > alpha * (1.0 + ALPHA_BOUNDARY_REL_EPS) * peak
+
+
+class SearchTimeout(Exception):
+    """Raised inside the lookahead when the planning budget is spent."""
 
 
 def _row_entropies_bits(u: np.ndarray) -> np.ndarray:
@@ -77,6 +90,7 @@ class Decision:
     entropy: float  # H(o_t) of the belief the decision was made on, bits
     planning_time_s: float
     infeasible: list[str] = field(default_factory=list)  # better-ranked actions refused
+    search_depth: int = 1  # plies of the deepest search that completed (anytime planners)
 
     def as_dict(self) -> dict:
         return {
@@ -87,6 +101,7 @@ class Decision:
             "entropy": self.entropy,
             "planning_time_s": self.planning_time_s,
             "infeasible": list(self.infeasible),
+            "search_depth": self.search_depth,
         }
 
 
@@ -123,7 +138,7 @@ class RandomPlanner:
     def __init__(self, model_set=None, seed: int = 0, **_ignored):
         self.rng = np.random.default_rng(seed)
 
-    def choose(self, belief_filter, feasible=None) -> Decision:
+    def choose(self, belief, feasible=None) -> Decision:
         start = time.perf_counter()
         order = self.rng.permutation(len(ACTIONS))
         index, refused = _first_feasible(order, feasible)
@@ -163,6 +178,10 @@ class ActiveBeliefPlanner:
     measure="error" replaces the entropy by 1 - max object posterior (the
     quantity the stopping rule looks at); an experiment, not used by the
     named planners.
+
+    planning_budget_s (None: unbounded) makes the multi-ply planners anytime:
+    see ``choose``. ``clock`` (default ``time.perf_counter``) is what the
+    budget is measured with; tests inject a fake one.
     """
 
     def __init__(
@@ -179,6 +198,8 @@ class ActiveBeliefPlanner:
         intermediate_weight: float = 0.1,
         measure: str = "entropy",
         name: str | None = None,
+        planning_budget_s: float | None = None,
+        clock=None,
     ):
         if not 0.0 <= alpha <= 1.0:
             raise ValueError(f"alpha must be in [0, 1], got {alpha}")
@@ -204,6 +225,11 @@ class ActiveBeliefPlanner:
         if measure not in ("entropy", "error"):
             raise ValueError(f"measure must be 'entropy' or 'error', got {measure!r}")
         self.measure = measure
+        if planning_budget_s is not None and not planning_budget_s > 0.0:
+            raise ValueError(f"planning_budget_s must be > 0 (or None), got {planning_budget_s}")
+        self.planning_budget_s = None if planning_budget_s is None else float(planning_budget_s)
+        self.clock = time.perf_counter if clock is None else clock
+        self._deadline = None  # set only while a budgeted search runs
         self.name = name or ("cost" if cost_aware else ("abp" if plies == 1 else f"abp{plies}"))
 
         ms = model_set
@@ -231,32 +257,38 @@ class ActiveBeliefPlanner:
 
     # ------------------------------------------------------------------ public
 
-    def expected_entropy(self, belief: np.ndarray) -> tuple[np.ndarray, float]:
+    def expected_entropy(self, belief: np.ndarray, plies: int | None = None
+                         ) -> tuple[np.ndarray, float]:
         """(τ_a for every action, H(o_t)): expected object entropy after the plies
-        (for plies > 1 the weighted mean over the plies, see `intermediate_weight`)."""
+        (default ``self.plies``; for plies > 1 the weighted mean over the plies, see
+        `intermediate_weight`)."""
+        plies = self.plies if plies is None else int(plies)
+        nodes, mass = self._support(belief)
+        h0 = self._entropy_of(nodes, mass)
+        values = self._values(nodes, mass, h0, plies)
+        return values / (1.0 + self.intermediate_weight * (plies - 1)), h0
+
+    def _support(self, belief) -> tuple[np.ndarray, np.ndarray]:
         belief = np.asarray(belief, dtype=np.float64)
         nodes = np.flatnonzero(belief > self.support_floor * belief.max())
-        mass = belief[nodes] / belief[nodes].sum()
-        h0 = self._entropy_of(nodes, mass)
-        values = self._values(nodes, mass, h0, self.plies)
-        return values / (1.0 + self.intermediate_weight * (self.plies - 1)), h0
+        return nodes, belief[nodes] / belief[nodes].sum()
 
     def information_gain(self, belief: np.ndarray) -> np.ndarray:
         tau, h0 = self.expected_entropy(belief)
         return h0 - tau
 
-    def rates(self, belief: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    def rates(self, belief: np.ndarray, plies: int | None = None
+              ) -> tuple[np.ndarray, np.ndarray, float]:
         """Cost-aware score per first action, bits per second: with plies=1 the
         1-ply IG / duration; with plies=2 the best of that and of every fixed
         two-step plan (a, b): expected gain after both / (d_a + d_b), so a
         cheap preparatory move is credited with what it enables and charged
         for it. Returns (scores, 1-ply IG, H(o_t))."""
-        if self.plies == 1:
-            tau, h0 = self.expected_entropy(belief)
+        plies = self.plies if plies is None else int(plies)
+        if plies == 1:
+            tau, h0 = self.expected_entropy(belief, 1)
             return (h0 - tau) / self.duration, h0 - tau, h0
-        belief = np.asarray(belief, dtype=np.float64)
-        nodes = np.flatnonzero(belief > self.support_floor * belief.max())
-        mass = belief[nodes] / belief[nodes].sum()
+        nodes, mass = self._support(belief)
         h0 = self._entropy_of(nodes, mass)
         self._open_loop = True
         try:
@@ -267,16 +299,56 @@ class ActiveBeliefPlanner:
         rate2 = (h0 - table[:, 1:]) / (self.duration[:, None] + self.duration[None, :])
         return np.maximum(gain1 / self.duration, rate2.max(axis=1)), gain1, h0
 
-    def choose(self, belief_filter, feasible=None) -> Decision:
+    def choose(self, belief, feasible=None) -> Decision:
+        """Best feasible action for ``belief`` (an (N,) array or an object with
+        ``.belief``).
+
+        With ``planning_budget_s`` set and plies > 1 the search is anytime
+        (iterative deepening): the 1-ply scores are always computed (the floor,
+        Alg. 3 itself), then 2 plies, then 3, up to ``plies``; each deeper
+        search runs until it completes or the budget is spent, and the scores
+        of the deepest *completed* search decide (``Decision.search_depth``).
+        Scores of different depths are never mixed: a partial deeper search is
+        thrown away, and a depth predicted not to finish in the time left (from
+        the growth of the previous depths' times) is not started. The budget
+        is checked between the 1-ply evaluations inside the tree, so a decision
+        may overrun it by about one of those (a few ms at |M| = 1470); the 1-ply
+        floor is not interrupted.
+        """
+        belief = np.asarray(getattr(belief, "belief", belief), dtype=np.float64)
         start = time.perf_counter()
-        if self.cost_aware:
-            score, gain, h0 = self.rates(belief_filter.belief)
-            tolerance = self.tie_tolerance / self.duration.max()
-        else:
-            tau, h0 = self.expected_entropy(belief_filter.belief)
-            score = gain = h0 - tau
-            tolerance = self.tie_tolerance
+        budgeted = self.planning_budget_s is not None and self.plies > 1
+        deadline = self.clock() + self.planning_budget_s if budgeted else None
+        depth = 1 if budgeted else self.plies
+        began = self.clock()
+        score, gain, h0 = self._scores(belief, depth)
+        spent = [self.clock() - began]  # time of each completed depth
+        while budgeted and depth < self.plies:
+            # Do not start a depth that is predicted not to finish: its time is
+            # the last depth's times the last growth (first step: the branching
+            # factor, one child search per action); a doomed search would only
+            # burn the budget and be thrown away.
+            growth = spent[-1] / max(spent[-2], 1e-9) if len(spent) > 1 else self.num_actions
+            now = self.clock()
+            if now + spent[-1] * max(growth, 1.0) > deadline:
+                break
+            self._deadline = deadline
+            try:
+                deeper = self._scores(belief, depth + 1)
+            except SearchTimeout:
+                break
+            finally:
+                self._deadline = None
+            score, gain, h0 = deeper
+            depth += 1
+            spent.append(self.clock() - now)
         # Ties (e.g. nothing left to learn in one step) go to the cheaper action.
+        # The tolerance shrinks with the entropy left (below 1 bit): near the
+        # stop, the last 1e-3..1e-5 of doubt is what the actions must resolve,
+        # and a fixed 1e-3 bits would call every action a tie there.
+        tolerance = self.tie_tolerance * min(1.0, h0)
+        if self.cost_aware:
+            tolerance /= self.duration.max()
         order = _rank(score, tolerance, self.duration)
         index, refused = _first_feasible(order, feasible)
         return Decision(
@@ -287,7 +359,19 @@ class ActiveBeliefPlanner:
             entropy=h0,
             planning_time_s=time.perf_counter() - start,
             infeasible=refused,
+            search_depth=depth,
         )
+
+    def _scores(self, belief, plies) -> tuple[np.ndarray, np.ndarray, float]:
+        """(score maximised, information gain, H(o_t)) of a ``plies``-deep search."""
+        if self.cost_aware:
+            return self.rates(belief, plies)
+        tau, h0 = self.expected_entropy(belief, plies)
+        return h0 - tau, h0 - tau, h0
+
+    def _check_budget(self):
+        if self._deadline is not None and self.clock() >= self._deadline:
+            raise SearchTimeout
 
     # ---------------------------------------------------------------- internals
 
@@ -327,6 +411,7 @@ class ActiveBeliefPlanner:
     def _values(self, nodes, mass, h0, depth) -> np.ndarray:
         """Expected object entropy after `depth` plies, for each first action."""
         n = self.num_nodes
+        self._check_budget()
         if len(nodes) * 8 > n:
             # Wide support: one sparse mat-vec per action over the whole node
             # space, aggregated with precomputed (model, aspect) keys.
@@ -354,6 +439,7 @@ class ActiveBeliefPlanner:
             return self._leaf_values(keys, pred, bounds, models, h0)
         values = []
         for a in range(self.num_actions):
+            self._check_budget()
             nodes_a = keys[bounds[a]:bounds[a + 1]] - a * n
             model_c = np.searchsorted(models, nodes_a // STATES_PER_MODEL)
             values.append(
@@ -380,12 +466,13 @@ class ActiveBeliefPlanner:
             (act * rows + model_c) * n_asp + aspect, mass, minlength=n_act * rows * n_asp
         ).reshape(n_act, rows, n_asp)
         peak = np.maximum.reduceat(mass, bounds[:-1])
-        candidate = mass > self.alpha * peak[act]
+        candidate = above_alpha(mass, peak[act], self.alpha)
         weight = np.bincount(
             act[candidate] * n_asp + aspect[candidate], mass[candidate], minlength=n_act * n_asp
         ).reshape(n_act, n_asp)
         values = (1.0 - weight.sum(axis=1)) * h0
         for a in range(n_act):
+            self._check_budget()
             z_rows = np.flatnonzero(weight[a])
             entropy = self._row_measure(self.likelihood[z_rows] @ aggregated[a].T)
             values[a] += weight[a, z_rows] @ entropy
@@ -395,6 +482,7 @@ class ActiveBeliefPlanner:
         """τ_a of one action from its predicted belief: on the sparse ``nodes_a``
         with ``models`` = (compact model per node, number of models), or on every
         node when ``nodes_a`` is None."""
+        self._check_budget()  # one check per action of a wide support, too
         mass_a = mass_a / mass_a.sum()
         n_asp = self.num_aspects
         if nodes_a is None:
@@ -407,7 +495,7 @@ class ActiveBeliefPlanner:
         # P[m, x]: predicted mass of model m on nodes of aspect x.
         aggregated = np.bincount(key, mass_a, minlength=rows * n_asp).reshape(rows, n_asp)
         # Candidates of Alg. 3 line 8, grouped by their expected observation.
-        candidate = mass_a > self.alpha * mass_a.max()
+        candidate = above_alpha(mass_a, mass_a.max(), self.alpha)
         weight = np.bincount(aspect[candidate], mass_a[candidate], minlength=n_asp)
         z_rows = np.flatnonzero(weight)
         weight = weight[z_rows]
@@ -434,6 +522,7 @@ class ActiveBeliefPlanner:
             expanded[np.argmax(weight)] = True
         further = 0.0
         for j in np.flatnonzero(expanded):
+            self._check_budget()
             post = like[j][aspect] * mass_a
             keep = self._head(post)
             child_nodes = np.flatnonzero(keep) if nodes_a is None else nodes_a[keep]
@@ -455,8 +544,10 @@ def make_planner(name: str, model_set, **options):
     """Planner by name: random, abp (Alg. 3, 1-ply), abp2, abp3 (multi-ply), cost
     (bits per second of nominal action time over 1- and 2-step plans).
 
-    Options go to the planner (alpha, seed, durations, ...); options a planner
-    does not use are ignored so one option set serves a whole benchmark.
+    Options go to the planner (alpha, seed, durations, planning_budget_s, ...);
+    options a planner does not use are ignored so one option set serves a whole
+    benchmark. ``planning_budget_s`` bounds abp2/abp3/cost (anytime search); 1-ply
+    ``abp`` ignores it (it is the floor every budgeted search starts from).
     """
     if name == "random":
         return RandomPlanner(model_set, seed=options.get("seed", 0))
@@ -468,9 +559,12 @@ def make_planner(name: str, model_set, **options):
         "branch_min_prob",
         "tie_tolerance",
         "intermediate_weight",
+        "planning_budget_s",
+        "clock",
     }
     kwargs = {k: v for k, v in options.items() if k in known and v is not None}
     if name == "abp":
+        kwargs.pop("planning_budget_s", None)
         return ActiveBeliefPlanner(model_set, plies=1, name=name, **kwargs)
     if name in ("abp2", "abp3"):
         return ActiveBeliefPlanner(model_set, plies=int(name[-1]), name=name, **kwargs)

@@ -6,14 +6,16 @@ first observation from the observation model; then repeat up to
 from the true model's own transition probabilities (``outcome_states`` /
 ``outcome_probs``), the filter predicts, an observation of the new aspect is
 sampled (``ObservationModel.sample``) and the filter corrects. The trial
-stops as soon as the highest object posterior exceeds ``stop_posterior``
-(the recogniser's own stopping rule: a robot cannot read the truth, so a
-confident wrong answer also stops the trial and counts as an error); time is
-the sum of the nominal durations of the actions taken until then (all of them
-if it never stops). ``early_stop=False`` runs all actions instead (the paper's
-"simulated for 30 actions"). Correct = the true model has the highest
-posterior at the end. ``decidable`` marks trials in which no other model is a
-perfect twin from the initial state (``indistinguishable_models``).
+stops when the recogniser's stopping rule says so (``stopping.StoppingRule``;
+a robot cannot read the truth, so a confident wrong answer also stops the
+trial and counts as an error); time is the sum of the nominal durations of
+the actions taken until then. The ``"fixed"`` rule (``early_stop=False``)
+runs all actions instead (the paper's "simulated for 30 actions") and counts
+actions and time up to the first time the *true* object's posterior exceeds
+``stop_posterior`` (the paper's "time necessary for the object posterior to
+exceed 0.95"). Correct = the true model has the highest posterior at the end.
+``decidable`` marks trials in which no other model is a perfect twin from
+the initial state (``indistinguishable_models``).
 
 Seeding: trial ``i`` of a run with seed ``s`` draws its truth from
 ``SeedSequence([s, i, 0])`` and its noise from ``SeedSequence([s, i, 1])``,
@@ -29,6 +31,7 @@ import numpy as np
 
 from abp_belief.cube import ACTIONS, NOMINAL_DURATION_S, OPPOSITE_FACE, STATES_PER_MODEL
 from abp_belief.filter import BeliefFilter
+from abp_planner.stopping import StoppingRule
 
 MAX_ACTIONS = 30
 STOP_POSTERIOR = 0.95
@@ -38,16 +41,23 @@ STOP_POSTERIOR = 0.95
 class TrialResult:
     true_model: int
     initial_state: int
-    actions: list[str]  # until the top posterior first exceeded the threshold (or all)
+    actions: list[str]  # until the stop (fixed rule: until the true posterior's crossing)
     time_s: float  # nominal time of those actions
     actions_run: int  # actions executed (more than len(actions) without early stop)
-    identified: bool  # the object posterior exceeded the stop threshold
+    identified: bool  # the rule stopped before the action limit (fixed: true crossing)
     decidable: bool  # no other model is a perfect twin from the initial state
     correct: bool  # the true model has the highest posterior at the end
     final_true_posterior: float
     final_entropy: float  # bits, object marginal at the end
     true_posterior: list[float] = field(default_factory=list)  # after obs 0, then per action
     latency_ms: list[float] = field(default_factory=list)  # planning time per decision
+    stop_reason: str = ""
+    # Per step (after obs 0, then per action): top object posterior and whether the
+    # top object is the true one, so other stopping rules can be replayed offline.
+    top_posterior: list[float] = field(default_factory=list)
+    top_is_true: list[bool] = field(default_factory=list)
+    answer_posterior: list[float] = field(default_factory=list)  # mass of the top's twin class
+    search_depth: list[int] = field(default_factory=list)  # plies completed per decision
 
     @property
     def num_actions(self) -> int:
@@ -115,38 +125,63 @@ def run_trial(
     durations: dict | None = None,
     feasible=None,
     early_stop: bool = True,
+    stopping: StoppingRule | None = None,
 ) -> TrialResult:
-    """One trial; with ``early_stop=False`` the trial runs all ``max_actions``
-    (the paper's "simulated for 30 actions") and actions/time are counted up to
-    the first time the top posterior exceeded ``stop_posterior``."""
+    """One trial under ``stopping`` (default: the old 0.95 rule, or the
+    ``"fixed"`` 30-action protocol when ``early_stop=False``); the rule's own
+    ``max_actions`` caps the trial."""
     durations = NOMINAL_DURATION_S if durations is None else durations
+    if stopping is None:
+        stopping = StoppingRule(kind="posterior" if early_stop else "fixed",
+                                stop_posterior=stop_posterior, max_actions=max_actions,
+                                observation_params=model_set.observation_params,
+                                n_tags=model_set.n_tags)
+    fixed = stopping.kind == "fixed"
     bf = belief_filter if belief_filter is not None else BeliefFilter(model_set)
     bf.reset()
     true_model = int(truth_rng.integers(model_set.num_models))
     state = initial_state = int(truth_rng.integers(STATES_PER_MODEL))
+    trace, tops, top_true, answers = [], [], [], []
 
     def observe():
         node = true_model * STATES_PER_MODEL + state
         bf.correct(model_set.observation.sample(int(model_set.node_aspect[node]), noise_rng))
-        return bf.object_marginal()
+        marginal = bf.object_marginal()
+        top = int(np.argmax(marginal))
+        trace.append(float(marginal[true_model]))
+        tops.append(float(marginal[top]))
+        top_true.append(top == true_model)
+        if stopping.node_class is not None:
+            answers.append(float(marginal[stopping.twin_class(bf.belief, top)].sum()))
+        else:
+            answers.append(float(marginal[top]))
+        return marginal
 
     marginal = observe()
-    trace = [float(marginal[true_model])]
-    actions, latency = [], []
-    identified = marginal.max() > stop_posterior
-    actions_to_stop = 0 if identified else None
-    while (not identified or not early_stop) and len(actions) < max_actions:
-        decision = planner.choose(bf, feasible)
+    actions, latency, depth = [], [], []
+    # Fixed protocol: count to the true object's first crossing of the posterior
+    # threshold (not any object's: a wrong model's crossing is no identification).
+    crossing = stopping.stop_posterior
+    actions_to_stop = 0 if fixed and trace[-1] > crossing else None
+    stop, reason = stopping.check(bf.belief, 0)
+    while not stop:
+        decision = planner.choose(bf.belief, feasible)
         latency.append(decision.planning_time_s * 1e3)
+        depth.append(int(getattr(decision, "search_depth", 1) or 1))
         a = decision.action_index
         state = sample_outcome(model_set, true_model, state, a, noise_rng)
         bf.predict(ACTIONS[a])
         marginal = observe()
         actions.append(ACTIONS[a])
-        trace.append(float(marginal[true_model]))
-        if not identified and marginal.max() > stop_posterior:
-            identified, actions_to_stop = True, len(actions)
-    counted = actions if actions_to_stop is None else actions[:actions_to_stop]
+        if fixed and actions_to_stop is None and trace[-1] > crossing:
+            actions_to_stop = len(actions)
+        stop, reason = stopping.check(bf.belief, len(actions))
+    if fixed:
+        counted = actions if actions_to_stop is None else actions[:actions_to_stop]
+        identified = actions_to_stop is not None
+    else:
+        counted = actions
+        identified = not reason.startswith("action limit")
     return TrialResult(
         true_model=true_model,
         initial_state=initial_state,
@@ -160,4 +195,9 @@ def run_trial(
         final_entropy=float(bf.entropy()),
         true_posterior=trace,
         latency_ms=latency,
+        stop_reason=reason,
+        top_posterior=tops,
+        top_is_true=top_true,
+        answer_posterior=answers,
+        search_depth=depth,
     )

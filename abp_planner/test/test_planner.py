@@ -99,42 +99,37 @@ def test_one_ply_matches_brute_force_after_observation(tiny_set):
     )
 
 
-class _Stub:
-    def __init__(self, belief):
-        self.belief = belief
-
-
 def test_infeasible_best_falls_through(tiny_set):
     belief = _random_beliefs(tiny_set, np.random.default_rng(3), 2)[1]
     planner = ActiveBeliefPlanner(tiny_set, tie_tolerance=0.0)  # strict argmax
-    free = planner.choose(_Stub(belief))
+    free = planner.choose(belief)
     gain = free.information_gain
     assert gain[free.action_index] == gain.max()
     refused = {free.action}
-    blocked = planner.choose(_Stub(belief), feasible=lambda a: a not in refused)
+    blocked = planner.choose(belief, feasible=lambda a: a not in refused)
     assert blocked.action != free.action
     assert blocked.infeasible == [free.action]
     assert gain[blocked.action_index] == np.delete(gain, free.action_index).max()
     with pytest.raises(RuntimeError):
-        planner.choose(_Stub(belief), feasible=lambda a: False)
+        planner.choose(belief, feasible=lambda a: False)
     # With the default tolerance near-ties go to the shorter action.
     tolerant = ActiveBeliefPlanner(tiny_set)
-    pick = tolerant.choose(_Stub(belief))
+    pick = tolerant.choose(belief)
     assert gain[pick.action_index] >= gain.max() - tolerant.tie_tolerance
     near = np.flatnonzero(gain >= gain.max() - tolerant.tie_tolerance)
     assert tolerant.duration[pick.action_index] == tolerant.duration[near].min()
 
 
 def test_random_planner_seeded(tiny_set):
-    stub = _Stub(np.full(tiny_set.num_nodes, 1.0 / tiny_set.num_nodes))
-    first = [RandomPlanner(seed=5).choose(stub).action for _ in range(1)]
+    uniform = np.full(tiny_set.num_nodes, 1.0 / tiny_set.num_nodes)
+    first = [RandomPlanner(seed=5).choose(uniform).action for _ in range(1)]
     a = RandomPlanner(seed=5)
     b = RandomPlanner(seed=5)
-    seq_a = [a.choose(stub).action for _ in range(20)]
-    seq_b = [b.choose(stub).action for _ in range(20)]
+    seq_a = [a.choose(uniform).action for _ in range(20)]
+    seq_b = [b.choose(uniform).action for _ in range(20)]
     assert seq_a == seq_b and seq_a[0] == first[0]
     assert len(set(seq_a)) > 3
-    only_push = RandomPlanner(seed=1).choose(stub, feasible=lambda a: a == "PUSH")
+    only_push = RandomPlanner(seed=1).choose(uniform, feasible=lambda a: a == "PUSH")
     assert only_push.action == "PUSH"
 
 
@@ -147,7 +142,7 @@ def test_multi_ply(tiny_set, which):
     two = make_planner("abp2", tiny_set)
     three = make_planner("abp3", tiny_set)
     for planner in (two, three):
-        decision = planner.choose(_Stub(belief))
+        decision = planner.choose(belief)
         assert decision.action in ACTIONS
         assert np.all(np.isfinite(decision.information_gain))
     # Two plies can only learn more than one (min over the second action).
@@ -157,7 +152,7 @@ def test_multi_ply(tiny_set, which):
 def test_cost_aware_scores_per_second(tiny_set):
     belief = _random_beliefs(tiny_set, np.random.default_rng(5), 2)[1]
     cost = make_planner("cost", tiny_set)
-    d = cost.choose(_Stub(belief))
+    d = cost.choose(belief)
     np.testing.assert_allclose(d.score, d.information_gain / cost.duration)
 
 
@@ -228,4 +223,4 @@ def test_two_ply_and_cost_match_composition(tiny_set, which):
     expected = np.maximum(gain1 / d, ((h0 - open_loop) / (d[:, None] + d[None, :])).max(axis=1))
     np.testing.assert_allclose(score, expected, atol=1e-12)
     np.testing.assert_allclose(gain1, brute_force_ig(tiny_set, belief, 0.1), atol=1e-9)
-    assert make_planner("cost", tiny_set).choose(_Stub(belief)).action in ACTIONS
+    assert make_planner("cost", tiny_set).choose(belief).action in ACTIONS

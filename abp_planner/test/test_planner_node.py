@@ -15,16 +15,16 @@ ament_index = pytest.importorskip("ament_index_python.packages")
 from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
+from abp_common.qos import reliable  # noqa: E402
 from abp_msgs.action import Recognize  # noqa: E402
 from abp_msgs.msg import ExecutedAction, PlanStep  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 WORLD = REPO / "tests" / "helpers" / "model_world_node.py"
 SEED = 5
-RELIABLE = QoSProfile(depth=50, reliability=QoSReliabilityPolicy.RELIABLE)
+RELIABLE = reliable(50)  # the test reads every message of an episode
 
 
 def executable(package, name):

@@ -1,8 +1,11 @@
 """ORBIT, PUSH, LIFT and FLIP skills of the uBot-6-like robot.
 
-Plain modules (no rclpy): `ik` (damped least-squares hand IK on Pinocchio),
-`collision` (arm self-collision), `trajectories` (Ruckig joint and path profiles,
-the ORBIT base profile and controller), `plans` (the skills' waypoints and phases,
-feasibility). ROS wiring: `skills_node` (the action servers and the feasibility
-service). `benchmark` times IK and trajectory generation.
+Plain modules (no rclpy): `ik` (damped least-squares hand IK on Pinocchio), `collision`
+(arm self-collision), `motion_profiles` (Ruckig joint and path profiles), `base_motion`
+(the ORBIT and approach base plans and their odometry tracker), `plans` (the skills'
+waypoints and phases, feasibility), `skill_params` (the parameter table), `skill_claim`
+(one skill at a time across processes), `skill_checks` and `robot_state` (goal, timeout,
+arrival and state-age rules). ROS wiring: `skills_node` (the node and its executables),
+`skill_action_servers`, `feasibility_service`, `robot_topics`. Robot facts (joint tables,
+head aiming, frames) come from abp_description.
 """

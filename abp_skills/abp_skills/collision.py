@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .ik import SIDES
+from abp_description.controllers import SIDES
 
 UPPER, FOREARM, HAND = 0, 1, 2
 PART_NAMES = ('upper arm', 'forearm', 'hand')

@@ -16,29 +16,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from abp_description.controllers import ARM_JOINTS, SIDES, TORSO_JOINT
 from abp_description.kinematics import HAND_FRAMES, RobotKinematics
-
-SIDES = ('left', 'right')
-TORSO_JOINT = 'torso_pitch_joint'
-HEAD_JOINTS = ('head_pan_joint', 'head_tilt_joint')
-ARM_JOINTS = {
-    side: tuple(f'{side}_{j}_joint' for j in
-                ('shoulder_pitch', 'shoulder_roll', 'upper_arm_yaw', 'elbow'))
-    for side in SIDES
-}
-WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
-# The joints the skills command through trajectories, in controller order.
-BODY_JOINTS = (TORSO_JOINT, *ARM_JOINTS['left'], *ARM_JOINTS['right'], *HEAD_JOINTS)
-CONTROLLERS = {
-    'torso': (TORSO_JOINT,),
-    'left_arm': ARM_JOINTS['left'],
-    'right_arm': ARM_JOINTS['right'],
-    'head': HEAD_JOINTS,
-}
-
-
-def other_side(side):
-    return 'right' if side == 'left' else 'left'
 
 
 def mirror_arm(values_left):
@@ -212,28 +191,3 @@ class HandIK:
             reason += f' ({", ".join(at_limit)} at limit)'
         return reason
 
-
-def look_at(kin, q, point, iterations=12):
-    """Head pan/tilt (within limits) pointing the camera's optical axis at `point`
-    (base_link). Returns (q with the head joints set, angular error in rad)."""
-    q = np.asarray(q, dtype=float).copy()
-    point = np.asarray(point, dtype=float)
-    i_pan, i_tilt = kin.joint_index(HEAD_JOINTS[0]), kin.joint_index(HEAD_JOINTS[1])
-    err = np.pi
-    for _ in range(iterations):
-        cam = kin.camera_pose(q)
-        d = cam[:3, :3].T @ (point - cam[:3, 3])  # in the optical frame: z forward
-        if d[2] <= 1e-9:
-            # Behind the camera: turn towards it roughly first.
-            q[i_pan] += 0.5 * np.sign(-d[0]) if abs(d[0]) > 1e-9 else 0.5
-        else:
-            # x right (pan left = positive pan moves the view left), y down (tilt down +).
-            q[i_pan] -= np.arctan2(d[0], d[2])
-            q[i_tilt] += np.arctan2(d[1], np.hypot(d[0], d[2]))
-        q = kin.clip(q)
-        cam = kin.camera_pose(q)
-        d = cam[:3, :3].T @ (point - cam[:3, 3])
-        err = float(np.arccos(np.clip(d[2] / max(np.linalg.norm(d), 1e-12), -1, 1)))
-        if err < 1e-4:
-            break
-    return q, err

@@ -15,7 +15,7 @@ from the face plane.
   centres (inside the third of the face nearest the robot); the stroke rolls the hands up
   by `flip_up` and back towards the robot by `flip_back` along a quarter ellipse, then
   puts the cube down where it stood.
-- ORBIT: `trajectories.plan_orbit` for the base; feasibility here (radius, clearance).
+- ORBIT: `base_motion.plan_orbit` for the base; feasibility here (radius, clearance).
 
 Free motions are joint-space Ruckig segments; contact, stroke and release moves are
 straight (or elliptic) hand paths timed by a Ruckig path profile and mapped to joints by
@@ -27,34 +27,31 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from abp_belief.cube import ACTIONS, ORBIT_STEPS
+from abp_description.controllers import ARM_JOINTS, BODY_JOINTS, SIDES, TORSO_JOINT, other_side
+from abp_description.frames import se2_compose
+from abp_description.kinematics import look_at
+
+from .base_motion import BaseLimits, plan_orbit
 from .collision import Box, SelfCollision
-from .ik import (
-    ARM_JOINTS,
-    BODY_JOINTS,
-    HEAD_JOINTS,
-    SIDES,
-    TORSO_JOINT,
-    HandIK,
-    look_at,
-    mirror_arm,
-)
-from .trajectories import (
-    BaseLimits,
+from .ik import HandIK, mirror_arm
+from .motion_profiles import (
     Limits,
     SampledTrajectory,
     TrajectoryError,
     joint_trajectory,
     path_profile,
-    plan_orbit,
     sample_profile,
-    wrap,
 )
 
 MANUAL_SKILLS = ('push', 'lift', 'flip')
-ORBIT_ACTIONS = {'ORBIT_P45': 45.0, 'ORBIT_M45': -45.0, 'ORBIT_P90': 90.0,
-                 'ORBIT_M90': -90.0, 'ORBIT_180': 180.0}
-ACTIONS = (*ORBIT_ACTIONS, 'PUSH', 'LIFT', 'FLIP')
-ORBIT_ANGLES_DEG = (45.0, -45.0, 90.0, -90.0, 180.0, -180.0)
+# The ATG's actions (ACTIONS, in the planner's and the belief's order) and the ORBIT
+# angles: ORBIT(θ) turns the cube's relative yaw by θ = 45° x the belief's ORBIT_STEPS,
+# so the angle the base drives is the yaw change the belief predicts.
+YAW_STEP_DEG = 45.0
+ORBIT_ACTIONS = {name: YAW_STEP_DEG * steps for name, steps in ORBIT_STEPS.items()}
+# An Orbit goal may also ask for -180 deg: the same view change, driven the other way round.
+ORBIT_ANGLES_DEG = (*ORBIT_ACTIONS.values(), -180.0)
 PHASES = ('approach', 'contact', 'stroke', 'retreat')
 
 # Folded arms (in front of the chest, clear of the wheels): left arm joint values;
@@ -363,7 +360,7 @@ class SkillPlanner:
     def _plan_push(self, q0, cube):
         cfg = self.config
         side = cfg.push_hand
-        idle = 'left' if side == 'right' else 'right'
+        idle = other_side(side)
         h, r = cube.half, cfg.hand_radius
         contact = cube.point(h + r, 0.0, 0.0)
         pre = cube.point(h + r + cfg.approach_gap, 0.0, 0.0)
@@ -530,9 +527,7 @@ class SkillPlanner:
         if not ok:
             raise PlanError(reason)
         c = np.asarray(cube_centre, dtype=float)
-        x, y, yaw = base_pose
-        cube_xy = np.array([x + np.cos(yaw) * c[0] - np.sin(yaw) * c[1],
-                            y + np.sin(yaw) * c[0] + np.cos(yaw) * c[1]])
+        cube_xy = se2_compose(base_pose, (c[0], c[1], 0.0))[:2]
         return plan_orbit(base_pose, cube_xy, np.radians(angle_deg), radius, self.config.base)
 
     def go_home(self, q, look=None, tolerance=0.05):
@@ -587,11 +582,6 @@ class SkillPlanner:
         return False, f'unknown action {action!r} (expected one of {", ".join(ACTIONS)})'
 
 
-def head_look_joints(kin, q, point):
-    """Only the head joints (pan, tilt) of look_at."""
-    q2, _ = look_at(kin, q, point)
-    return q2[[kin.joint_index(n) for n in HEAD_JOINTS]]
 
-
-__all__ = ['ACTIONS', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS', 'PHASES', 'Phase',
-           'PlanError', 'SkillConfig', 'SkillPlan', 'SkillPlanner', 'head_look_joints', 'wrap']
+__all__ = ['ACTIONS', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS', 'ORBIT_ANGLES_DEG', 'PHASES',
+           'Phase', 'PlanError', 'SkillConfig', 'SkillPlan', 'SkillPlanner']

@@ -26,14 +26,13 @@ from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory
 
+from abp_common.qos import RELIABLE
+from abp_description.controllers import CONTROLLERS
 from abp_description.kinematics import RobotKinematics
 
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
-CONTROLLERS = ('torso', 'left_arm', 'right_arm', 'head')
 HOME = {'left_shoulder_pitch_joint': 0.5, 'left_shoulder_roll_joint': 0.2,
         'left_elbow_joint': -2.0, 'right_shoulder_pitch_joint': 0.5,
         'right_shoulder_roll_joint': -0.2, 'right_elbow_joint': -2.0, 'head_tilt_joint': 1.0}
@@ -54,7 +53,7 @@ class FakeRobot(Node):
         self.active = {}   # controller -> (t0, joint indices, times, positions)
         self.create_subscription(Twist, '/cmd_vel', self.on_cmd, RELIABLE)
         for name in CONTROLLERS:
-            self.create_subscription(JointTrajectory, f'/{name}_controller/joint_trajectory',
+            self.create_subscription(JointTrajectory, f'/{name}/joint_trajectory',
                                      lambda msg, n=name: self.on_traj(n, msg), RELIABLE)
         self.js_pub = self.create_publisher(JointState, '/joint_states', RELIABLE)
         self.odom_pub = self.create_publisher(Odometry, '/odom', RELIABLE)

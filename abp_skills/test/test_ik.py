@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from abp_description.kinematics import RobotKinematics
+from abp_description.controllers import ARM_JOINTS, TORSO_JOINT
+from abp_description.kinematics import RobotKinematics, look_at
 from abp_skills.collision import SelfCollision, segment_distance
-from abp_skills.ik import ARM_JOINTS, TORSO_JOINT, HandIK, look_at
+from abp_skills.ik import HandIK
 from abp_skills.plans import SkillPlanner
 
 

@@ -4,8 +4,8 @@ within the joint limits and clear of self-collision, and refuse what they cannot
 import numpy as np
 import pytest
 
+from abp_description.controllers import BODY_JOINTS
 from abp_description.kinematics import RobotKinematics
-from abp_skills.ik import BODY_JOINTS
 from abp_skills.plans import ACTIONS, PHASES, SkillConfig, SkillPlanner
 
 CUBE = np.array([0.40, 0.0, 0.05])

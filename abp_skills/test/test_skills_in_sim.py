@@ -18,8 +18,8 @@ ament_index = pytest.importorskip("ament_index_python.packages")
 
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
+from abp_common.qos import LATCHED, RELIABLE  # noqa: E402
 from abp_msgs.action import Flip, Lift, Orbit, Push  # noqa: E402
 from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 
@@ -27,9 +27,6 @@ from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 # overloaded machine those can lag the sim clock. A real fault fails every rerun.
 pytestmark = pytest.mark.flaky(reruns=2, reruns_delay=2)
 
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 FACE_TAGS = "[0, 1, 2, 3, 4, 5]"  # body faces +x -x +y -y +z -z
 # mass index: 0 uniform, 1 + body face (docs/MODEL.md)
 UNIFORM, HEAVY_PLUS_Y, HEAVY_TOP = 0, 3, 5

@@ -27,12 +27,12 @@ from geometry_msgs.msg import Twist  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
+from abp_common.qos import RELIABLE  # noqa: E402
+from abp_description.controllers import CONTROLLERS  # noqa: E402
+
 FAKE_ROBOT = Path(__file__).with_name("fake_robot.py")
-CONTROLLERS = ("torso", "left_arm", "right_arm", "head")
 # Fast motions so that the tests stay short (the defaults are for the real robot).
 FAST = {
     "joint_velocity_scale": 1.0, "joint_acceleration": 8.0, "joint_jerk": 60.0,
@@ -82,7 +82,7 @@ class Harness:
         self.node.create_subscription(Twist, "/cmd_vel", self._on_cmd, RELIABLE)
         for c in CONTROLLERS:
             self.node.create_subscription(
-                JointTrajectory, f"/{c}_controller/joint_trajectory",
+                JointTrajectory, f"/{c}/joint_trajectory",
                 lambda msg, c=c: self.trajectories[c].append((time.monotonic(), len(msg.points))),
                 RELIABLE)
         self.node.create_timer(0.2, self._publish_estimate)
@@ -192,7 +192,7 @@ def test_refusals_and_the_feasibility_service(ros_processes, tester):
     res = tester.result(handle)
     assert res.status == GoalStatus.STATUS_ABORTED
     assert res.result.reason.startswith("refused:") and "out of reach" in res.result.reason
-    assert tester.trajectories["right_arm"] == []   # nothing moved
+    assert tester.trajectories["right_arm_controller"] == []   # nothing moved
 
     # Bad goals are refused with a reason.
     _, handle = tester.send(Push, "push", Push.Goal(face="top"))

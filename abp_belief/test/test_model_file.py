@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from abp_belief import io, modelset, population
+from abp_belief import model_file, modelset, population
 
 ObservationParams, TransitionParams = modelset.ObservationParams, modelset.TransitionParams
 
@@ -18,7 +18,7 @@ def small():
 @pytest.fixture
 def saved(small, tmp_path):
     path = tmp_path / "robot.npz"
-    io.save(small, path)
+    model_file.save(small, path)
     return path
 
 
@@ -31,12 +31,12 @@ def _members(path):
 
 def _rewrite(path, header, arrays, rehash=True):
     if rehash:
-        header["sha256"] = io.arrays_sha256(arrays)
-    io.write_npz(path, header, arrays)
+        header["sha256"] = model_file.arrays_sha256(arrays)
+    model_file.write_npz(path, header, arrays)
 
 
 def test_round_trip_is_identical(small, saved):
-    loaded = io.load(saved)
+    loaded = model_file.load(saved)
     for name in ("faces", "mass", "visual_id", "node_aspect", "aspects", "outcome_states",
                  "outcome_probs"):
         a, b = getattr(small, name), getattr(loaded, name)
@@ -55,14 +55,14 @@ def test_round_trip_is_identical(small, saved):
 
 def test_full_set_round_trip(full7, tmp_path):
     path = tmp_path / "full.models"                      # any suffix; nothing is appended
-    io.save(full7, path)
-    loaded = io.load(path)
+    model_file.save(full7, path)
+    loaded = model_file.load(path)
     assert loaded.num_models == 1470 and np.array_equal(loaded.node_aspect, full7.node_aspect)
 
 
 def _expect(path, *fragments):
-    with pytest.raises(io.ModelFileError) as info:
-        io.load(path)
+    with pytest.raises(model_file.ModelFileError) as info:
+        model_file.load(path)
     message = str(info.value)
     assert str(path) in message
     for fragment in fragments:
@@ -91,8 +91,8 @@ def test_corrupted_bytes(saved):
     middle = len(data) // 2
     data[middle:middle + 64] = bytes(64)
     saved.write_bytes(bytes(data))
-    with pytest.raises(io.ModelFileError, match="robot.npz"):
-        io.load(saved)
+    with pytest.raises(model_file.ModelFileError, match="robot.npz"):
+        model_file.load(saved)
 
 
 def test_wrong_format_name(saved):
@@ -111,9 +111,9 @@ def test_missing_header(saved, tmp_path):
 
 def test_unsupported_version(saved):
     header, arrays = _members(saved)
-    header["version"] = io.FORMAT_VERSION + 1
+    header["version"] = model_file.FORMAT_VERSION + 1
     _rewrite(saved, header, arrays)
-    _expect(saved, "unsupported format version", str(io.FORMAT_VERSION + 1))
+    _expect(saved, "unsupported format version", str(model_file.FORMAT_VERSION + 1))
 
 
 def test_checksum_mismatch(saved):

@@ -1,193 +1,24 @@
-"""Time-optimal jerk-limited motion with Ruckig (plain NumPy + Ruckig, no rclpy).
+"""The base's motions: ORBIT around the cube and the manual skills' approach, as planned
+profiles and a closed-loop tracker on odometry (plain NumPy + Ruckig, no rclpy).
 
-- Joint space: `joint_trajectory` goes through joint waypoints with one phase-synchronised
-  multi-DOF Ruckig profile per segment (a straight line in joint space), rest to rest at
-  each waypoint (the open-source Ruckig computes intermediate waypoints only through its
-  cloud API, so segments are planned one by one), sampled every `dt` into a
-  `SampledTrajectory`.
-- Paths: `path_profile` is a 1-D Ruckig profile of the arc length along a Cartesian path
-  (the skills map it to joints with IK, see `plans`).
-- Base: `plan_orbit` builds ORBIT(θ) for a differential drive: turn in place to the
-  tangent, drive a constant-radius arc around the cube (v = r·ω), turn back to face the
-  cube, each piece a Ruckig profile of its angle or length. `OrbitTracker` closes the
-  loop on odometry with a unicycle tracking law and a final settling phase.
+`plan_orbit` builds ORBIT(θ) for a differential drive: turn in place to the tangent,
+drive a constant-radius arc around the cube (v = r·ω), turn back to face the cube, each
+piece a Ruckig profile of its angle or length (`motion_profiles.path_profile`).
+`plan_base_approach` turns to the cube and drives straight to a distance from it.
+`OrbitTracker` closes the loop on odometry with a unicycle tracking law and a final
+settling phase.
 
-Angles in rad, lengths in m, times in s.
+Angles in rad, lengths in m, times in s; poses are (x, y, yaw) in the odom frame.
 """
 
 from dataclasses import dataclass, field
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 
+from abp_description.frames import se2_between, wrap_rad
 
-def wrap(angle):
-    return float((angle + np.pi) % (2 * np.pi) - np.pi)
+from .motion_profiles import Limits, path_profile
 
-
-@dataclass(frozen=True)
-class Limits:
-    """Per-DOF kinematic limits (arrays of the trajectory's DOF count, or scalars)."""
-
-    velocity: np.ndarray
-    acceleration: np.ndarray
-    jerk: np.ndarray
-
-    def for_dofs(self, n):
-        def vec(v):
-            v = np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()
-            if np.any(~np.isfinite(v)) or np.any(v <= 0):
-                raise ValueError('velocity, acceleration and jerk limits must be finite and > 0')
-            return v
-        return Limits(vec(self.velocity), vec(self.acceleration), vec(self.jerk))
-
-
-class TrajectoryError(RuntimeError):
-    pass
-
-
-@dataclass
-class SampledTrajectory:
-    """Joint positions/velocities/accelerations at increasing times from 0."""
-
-    joint_names: tuple
-    times: np.ndarray
-    positions: np.ndarray
-    velocities: np.ndarray
-    accelerations: np.ndarray
-
-    @property
-    def duration(self):
-        return float(self.times[-1]) if len(self.times) else 0.0
-
-    @property
-    def start(self):
-        return self.positions[0]
-
-    @property
-    def end(self):
-        return self.positions[-1]
-
-    def at(self, t):
-        """Positions at time t (linear between samples, clamped to the ends)."""
-        t = float(np.clip(t, 0.0, self.duration))
-        i = int(np.searchsorted(self.times, t, side='right')) - 1
-        i = min(max(i, 0), len(self.times) - 1)
-        if i == len(self.times) - 1:
-            return self.positions[-1].copy()
-        t0, t1 = self.times[i], self.times[i + 1]
-        w = 0.0 if t1 <= t0 else (t - t0) / (t1 - t0)
-        return (1 - w) * self.positions[i] + w * self.positions[i + 1]
-
-    def select(self, names):
-        """The same trajectory restricted to some joints (in the order given)."""
-        idx = [self.joint_names.index(n) for n in names]
-        return SampledTrajectory(tuple(names), self.times, self.positions[:, idx],
-                                 self.velocities[:, idx], self.accelerations[:, idx])
-
-    @staticmethod
-    def hold(joint_names, q, duration=0.0):
-        q = np.asarray(q, dtype=float)[None, :]
-        times = np.array([0.0]) if duration <= 0 else np.array([0.0, duration])
-        pos = np.repeat(q, len(times), axis=0)
-        return SampledTrajectory(tuple(joint_names), times, pos, np.zeros_like(pos),
-                                 np.zeros_like(pos))
-
-    @staticmethod
-    def concat(parts):
-        parts = [p for p in parts if p is not None and len(p.times)]
-        if not parts:
-            raise ValueError('nothing to concatenate')
-        names = parts[0].joint_names
-        times, pos, vel, acc = [parts[0].times], [parts[0].positions], [parts[0].velocities], \
-            [parts[0].accelerations]
-        offset = parts[0].duration
-        for p in parts[1:]:
-            if p.joint_names != names:
-                raise ValueError('joint names differ')
-            times.append(p.times[1:] + offset)
-            pos.append(p.positions[1:])
-            vel.append(p.velocities[1:])
-            acc.append(p.accelerations[1:])
-            offset += p.duration
-        return SampledTrajectory(names, np.concatenate(times), np.vstack(pos), np.vstack(vel),
-                                 np.vstack(acc))
-
-
-def ruckig_profile(start, target, limits, start_velocity=None, target_velocity=None):
-    """Time-optimal, time-synchronised jerk-limited profile from `start` to `target`
-    (arrays of n DOF); returns a ruckig.Trajectory."""
-    start = np.atleast_1d(np.asarray(start, dtype=float))
-    target = np.atleast_1d(np.asarray(target, dtype=float))
-    n = start.size
-    lim = limits.for_dofs(n)
-    otg = Ruckig(n)
-    inp = InputParameter(n)
-    inp.current_position = start.tolist()
-    inp.current_velocity = (np.zeros(n) if start_velocity is None
-                            else np.asarray(start_velocity, dtype=float)).tolist()
-    inp.current_acceleration = [0.0] * n
-    inp.target_position = target.tolist()
-    inp.target_velocity = (np.zeros(n) if target_velocity is None
-                           else np.asarray(target_velocity, dtype=float)).tolist()
-    inp.target_acceleration = [0.0] * n
-    inp.max_velocity = lim.velocity.tolist()
-    inp.max_acceleration = lim.acceleration.tolist()
-    inp.max_jerk = lim.jerk.tolist()
-    # Phase synchronisation: every DOF follows the same normalised profile, so the motion
-    # is a straight line in joint space (Ruckig falls back to time synchronisation when a
-    # non-zero boundary velocity makes that impossible).
-    inp.synchronization = Synchronization.Phase
-    traj = Trajectory(n)
-    result = otg.calculate(inp, traj)
-    if result not in (Result.Working, Result.Finished):
-        raise TrajectoryError(f'Ruckig could not plan the segment: {result}')
-    return traj
-
-
-def sample_profile(traj, dt):
-    """(times, positions, velocities, accelerations) of a Ruckig trajectory every dt,
-    the end included."""
-    duration = float(traj.duration)
-    n_steps = max(1, int(np.ceil(duration / dt - 1e-9)))
-    times = np.linspace(0.0, duration, n_steps + 1)
-    pos, vel, acc = [], [], []
-    for t in times:
-        p, v, a = traj.at_time(float(t))
-        pos.append(p)
-        vel.append(v)
-        acc.append(a)
-    return times, np.array(pos, dtype=float), np.array(vel, dtype=float), \
-        np.array(acc, dtype=float)
-
-
-def joint_trajectory(joint_names, q_start, waypoints, limits, dt=0.05):
-    """Rest-to-rest jerk-limited motion from `q_start` through every waypoint (each an
-    array over `joint_names`), sampled every `dt`."""
-    names = tuple(joint_names)
-    current = np.asarray(q_start, dtype=float)
-    parts = []
-    for wp in waypoints:
-        wp = np.asarray(wp, dtype=float)
-        if wp.shape != current.shape:
-            raise ValueError(f'waypoint has shape {wp.shape}, expected {current.shape}')
-        if np.max(np.abs(wp - current)) < 1e-9:
-            continue
-        times, pos, vel, acc = sample_profile(ruckig_profile(current, wp, limits), dt)
-        pos[-1] = wp
-        parts.append(SampledTrajectory(names, times, pos, vel, acc))
-        current = wp
-    if not parts:
-        return SampledTrajectory.hold(names, current)
-    return SampledTrajectory.concat(parts)
-
-
-def path_profile(length, velocity, acceleration, jerk):
-    """1-D rest-to-rest Ruckig profile of the distance travelled along a path."""
-    return ruckig_profile([0.0], [float(length)], Limits(velocity, acceleration, jerk))
-
-
-# -- ORBIT: the base ------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class BaseLimits:
@@ -229,7 +60,7 @@ class BaseSegment:
         sign = 1.0 if self.amount >= 0 else -1.0
         x0, y0, yaw0 = self.start_pose
         if self.kind == 'turn':
-            return np.array([x0, y0, wrap(yaw0 + sign * s)]), 0.0, sign * ds
+            return np.array([x0, y0, wrap_rad(yaw0 + sign * s)]), 0.0, sign * ds
         if self.kind == 'line':
             d = sign * s
             return np.array([x0 + d * np.cos(yaw0), y0 + d * np.sin(yaw0), yaw0]), sign * ds, 0.0
@@ -240,7 +71,7 @@ class BaseSegment:
         else:
             x = x0 + (np.sin(yaw) - np.sin(yaw0)) / k
             y = y0 - (np.cos(yaw) - np.cos(yaw0)) / k
-        return np.array([x, y, wrap(yaw)]), ds, k * ds
+        return np.array([x, y, wrap_rad(yaw)]), ds, k * ds
 
     def end_pose(self):
         return self.state(self.duration)[0]
@@ -328,7 +159,7 @@ def plan_orbit(start_pose, cube_xy, angle, radius, limits=None, face_tol=np.radi
     dist = float(np.linalg.norm(rel))
     if dist < 1e-6:
         raise ValueError('the robot stands on the cube')
-    bearing = wrap(np.arctan2(rel[1], rel[0]) - pose[2])
+    bearing = wrap_rad(np.arctan2(rel[1], rel[0]) - pose[2])
 
     def add(kind, amount, phase, curvature=0.0):
         nonlocal pose
@@ -343,10 +174,10 @@ def plan_orbit(start_pose, cube_xy, angle, radius, limits=None, face_tol=np.radi
         add('line', dist - radius, 'approach')
         add('turn', sgn * np.pi / 2, 'approach')
     else:
-        add('turn', wrap(bearing + sgn * np.pi / 2), 'approach')
+        add('turn', wrap_rad(bearing + sgn * np.pi / 2), 'approach')
     add('arc', radius * abs(angle), 'stroke', curvature=-sgn / radius)
     to_cube = cube - pose[:2]
-    add('turn', wrap(np.arctan2(to_cube[1], to_cube[0]) - pose[2]), 'stroke')
+    add('turn', wrap_rad(np.arctan2(to_cube[1], to_cube[0]) - pose[2]), 'stroke')
     return plan
 
 
@@ -359,7 +190,7 @@ def plan_base_approach(start_pose, cube_xy, distance, limits=None, face_tol=np.r
     cube = np.asarray(cube_xy, dtype=float)[:2]
     plan = OrbitPlan(0.0, float(distance), cube, pose.copy())
     rel = cube - pose[:2]
-    bearing = wrap(np.arctan2(rel[1], rel[0]) - pose[2])
+    bearing = wrap_rad(np.arctan2(rel[1], rel[0]) - pose[2])
     if abs(bearing) > face_tol:
         seg = _make_segment('turn', bearing, 'approach', pose, limits)
         plan.segments.append(seg)
@@ -370,16 +201,6 @@ def plan_base_approach(start_pose, cube_xy, distance, limits=None, face_tol=np.r
     return plan
 
 
-def integrate_unicycle(pose, v, w, dt):
-    """Exact pose after driving at (v, ω) for dt from pose (x, y, yaw)."""
-    x, y, yaw = pose
-    if abs(w) < 1e-9:
-        return np.array([x + v * dt * np.cos(yaw), y + v * dt * np.sin(yaw), yaw])
-    yaw1 = yaw + w * dt
-    return np.array([x + v / w * (np.sin(yaw1) - np.sin(yaw)),
-                     y - v / w * (np.cos(yaw1) - np.cos(yaw)), wrap(yaw1)])
-
-
 def bearing_about(cube_xy, pose):
     """Direction (rad, odom) from the cube to the robot: what ORBIT changes by -angle."""
     return float(np.arctan2(pose[1] - cube_xy[1], pose[0] - cube_xy[0]))
@@ -388,7 +209,7 @@ def bearing_about(cube_xy, pose):
 def head_pan_towards(pose, cube_xy, limit=1.6):
     """Head pan (rad) that points the camera at the cube from the base pose (clipped)."""
     rel = np.asarray(cube_xy[:2], dtype=float) - np.asarray(pose[:2], dtype=float)
-    return float(np.clip(wrap(np.arctan2(rel[1], rel[0]) - pose[2]), -limit, limit))
+    return float(np.clip(wrap_rad(np.arctan2(rel[1], rel[0]) - pose[2]), -limit, limit))
 
 
 @dataclass
@@ -421,17 +242,16 @@ class OrbitTracker:
     def errors(self, t, pose):
         """(ex, ey, e_yaw) of the measured pose against the reference, robot frame."""
         ref, _, _, _ = self.plan.reference(t)
-        dx, dy = ref[0] - pose[0], ref[1] - pose[1]
-        c, s = np.cos(pose[2]), np.sin(pose[2])
-        return c * dx + s * dy, -s * dx + c * dy, wrap(ref[2] - pose[2])
+        ex, ey, e_yaw = se2_between(pose, ref)
+        return float(ex), float(ey), float(e_yaw)
 
     def final_errors(self, pose):
         """(bearing error about the cube, heading error, radius error) against the end."""
         end = self.plan.end_pose()
         cube = self.plan.cube_xy
-        b_err = wrap(bearing_about(cube, end) - bearing_about(cube, pose))
+        b_err = wrap_rad(bearing_about(cube, end) - bearing_about(cube, pose))
         r_err = float(np.linalg.norm(np.asarray(pose[:2]) - cube) - self.plan.radius)
-        return b_err, wrap(end[2] - pose[2]), r_err
+        return b_err, wrap_rad(end[2] - pose[2]), r_err
 
     def settled(self, pose):
         b_err, h_err, r_err = self.final_errors(pose)
@@ -473,11 +293,11 @@ class OrbitTracker:
         elif distance < 0.5 * enough:
             self._repositioning = False
         if not self._repositioning:
-            return 0.0, self.k_theta * np.sin(wrap(end[2] - pose[2]))
-        heading_error = wrap(np.arctan2(offset[1], offset[0]) - pose[2])
+            return 0.0, self.k_theta * np.sin(wrap_rad(end[2] - pose[2]))
+        heading_error = wrap_rad(np.arctan2(offset[1], offset[0]) - pose[2])
         direction = 1.0
         if abs(heading_error) > np.pi / 2:   # the end point is behind: back up to it
-            heading_error, direction = wrap(heading_error - np.pi), -1.0
+            heading_error, direction = wrap_rad(heading_error - np.pi), -1.0
         w = self.k_theta * heading_error
         if abs(heading_error) > np.radians(10):
             return 0.0, w   # face the line first, so the drive does not swing sideways

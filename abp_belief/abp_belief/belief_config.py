@@ -1,0 +1,17 @@
+"""The belief node's own parameters as a ROS-free table (the model-set parameters are
+`model_set_config.MODEL_SET_SPECS`). The node declares both with
+`abp_common.parameters.declare_all`."""
+
+from abp_common.param_spec import BOOL, DOUBLE, INT, ParamSpec
+
+BELIEF_SPECS = (
+    ParamSpec('top_k', INT, 10, 'Number of objects and aspect nodes listed in /abp/belief.',
+              (1, 1000)),
+    ParamSpec('node_floor', DOUBLE, 1e-12, 'Nodes below this fraction of the most probable '
+              'node are left out of the sparse belief in /abp/belief (the planner plans on the '
+              'rest).', (0.0, 1e-3)),
+    ParamSpec('correct_once_per_action', BOOL, True, 'Use only the first observation after '
+              'each executed action (true), or every observation message (false).'),
+)
+
+__all__ = ['BELIEF_SPECS']

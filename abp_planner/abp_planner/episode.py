@@ -1,0 +1,218 @@
+"""One Recognize episode as a plain class (no rclpy): when to stop, what to do after a
+failed skill, how long to wait for evidence.
+
+`EpisodeRunner.run()` resets the belief, waits for the first observation, then loops:
+check the stopping rule and cancellation, ask the planner for the best feasible action
+(retrying while nothing is feasible, for up to the observation timeout), run the skill,
+announce it, and wait for the belief that includes the action's evidence. A failed
+skill is left out of the next decision (re-plan) unless nothing else is feasible
+(retry). The ROS side (`planner_node`) provides the `EpisodePorts`: the belief as
+received on abp/belief, the skill and service calls, and the publishers. Time comes
+from the injected `clock` / `sleep`, so the rules are unit-tested without DDS.
+"""
+
+import time
+from typing import NamedTuple, Protocol
+
+import numpy as np
+
+SUCCEEDED, CANCELED, ABORTED = 'succeeded', 'canceled', 'aborted'
+# Pause between feasibility checks while no action is feasible.
+FEASIBILITY_RETRY_S = 0.5
+# After a missed observation: how long to wait for any belief at all.
+LATEST_BELIEF_WAIT_S = 1.0
+
+
+class RecognitionAborted(Exception):
+    """The loop cannot go on (no observation, no feasible action); the reason is the message."""
+
+
+class StopCheck(NamedTuple):
+    stop: bool
+    success: bool  # the recognition reached its goal (vs. gave up)
+    reason: str
+
+
+class PosteriorStop:
+    """Stop with success once the top object posterior reaches `threshold`; stop without
+    once `max_actions` actions are spent. Any object with this `check` can replace it."""
+
+    def __init__(self, threshold, max_actions):
+        self.threshold = float(threshold)
+        self.max_actions = int(max_actions)
+
+    def check(self, belief, actions_taken):
+        posterior = top_posterior(belief)
+        if posterior >= self.threshold:
+            return StopCheck(True, True, f'posterior {posterior:.3f} >= {self.threshold}')
+        if actions_taken >= self.max_actions:
+            return StopCheck(True, False, f'action budget of {self.max_actions} spent')
+        return StopCheck(False, False, '')
+
+
+class EpisodeResult(NamedTuple):
+    outcome: str  # SUCCEEDED, CANCELED or ABORTED (how the goal ends)
+    success: bool
+    reason: str
+    actions_taken: int
+    belief: object  # the last belief (abp_msgs/Belief), None if there was none
+
+
+class EpisodePorts(Protocol):
+    """What the runner needs from the ROS side. A belief is an abp_msgs/Belief (or any
+    object with step, probabilities, object_ids, entropy, node_indices and
+    node_probabilities)."""
+
+    def reset_belief(self) -> None:
+        """Reset the belief node; raise RecognitionAborted if that fails."""
+
+    def wait_for_belief(self, predicate, timeout_s):
+        """The latest belief once `predicate(belief)` holds, or None after `timeout_s`."""
+
+    def latest_belief(self):
+        """The latest belief received, or None."""
+
+    def check_feasibility(self) -> dict:
+        """{action: (feasible, reason)}; actions left out count as feasible."""
+
+    def run_skill(self, action) -> tuple:
+        """Run the skill to its end: (success, reason, duration)."""
+
+    def cancel_requested(self) -> bool: ...
+
+    def publish_plan(self, decision, feasible) -> None: ...
+
+    def publish_feedback(self, belief, decision, actions_taken) -> None: ...
+
+    def publish_executed(self, action, sequence, success, reason, duration) -> None: ...
+
+
+def top_posterior(belief):
+    return max(belief.probabilities) if belief.probabilities else 0.0
+
+
+def belief_array(belief, num_nodes):
+    """The (num_nodes,) normalised node belief of a sparse abp_msgs/Belief."""
+    out = np.zeros(num_nodes)
+    out[np.asarray(belief.node_indices, dtype=np.int64)] = belief.node_probabilities
+    return out / out.sum()
+
+
+def expected_gain(decision):
+    """Expected information gain (bits) of the chosen action; NaN for the random planner."""
+    if decision.information_gain is None:
+        return float('nan')
+    return float(decision.information_gain[decision.action_index])
+
+
+class EpisodeRunner:
+    """Runs one episode: `run()` -> EpisodeResult.
+
+    planner: `choose(belief_array, feasible) -> Decision` (abp_planner.planner).
+    stopping: `check(belief, actions_taken) -> StopCheck` (e.g. PosteriorStop).
+    logger: info / warning / error (an rclpy or a logging logger)."""
+
+    def __init__(self, planner, ports, num_nodes, stopping, observation_timeout_s, logger,
+                 clock=time.monotonic, sleep=time.sleep):
+        self.planner = planner
+        self.ports = ports
+        self.num_nodes = int(num_nodes)
+        self.stopping = stopping
+        self.observation_timeout_s = float(observation_timeout_s)
+        self.log = logger
+        self.clock = clock
+        self.sleep = sleep
+
+    def run(self):
+        ports = self.ports
+        actions_taken = 0
+        try:
+            belief = self._start()
+            refused_after_failure = set()
+            while True:
+                check = self.stopping.check(belief, actions_taken)
+                if check.stop:
+                    return EpisodeResult(SUCCEEDED, check.success, check.reason, actions_taken,
+                                         belief)
+                if ports.cancel_requested():
+                    return EpisodeResult(CANCELED, False, 'cancelled', actions_taken, belief)
+                decision, feasible = self._decide(belief, refused_after_failure)
+                ports.publish_plan(decision, feasible)
+                ports.publish_feedback(belief, decision, actions_taken)
+                self.log.info(
+                    f'action {actions_taken + 1}: {decision.action} '
+                    f'(IG {expected_gain(decision):.3f} bits, H {belief.entropy:.3f} bits, top '
+                    f'{belief.object_ids[0] if belief.object_ids else "-"} '
+                    f'{top_posterior(belief):.3f})')
+                step_before = belief.step
+                success, reason, duration = ports.run_skill(decision.action)
+                actions_taken += 1
+                ports.publish_executed(decision.action, actions_taken, success, reason, duration)
+                if ports.cancel_requested():
+                    return EpisodeResult(CANCELED, False, 'cancelled', actions_taken, belief)
+                if success:
+                    refused_after_failure.clear()
+                    expected_step = step_before + 2  # prediction, then a fresh correction
+                else:
+                    # Re-plan without the action that just failed, once.
+                    self.log.warning(f'{decision.action} failed: {reason}; re-planning')
+                    refused_after_failure.add(decision.action)
+                    expected_step = step_before + 1  # a fresh correction only
+                belief = self._wait_for_evidence(expected_step) or belief
+        except RecognitionAborted as error:
+            self.log.error(f'recognition aborted: {error}')
+            return EpisodeResult(ABORTED, False, str(error), actions_taken,
+                                 ports.latest_belief())
+
+    def _start(self):
+        """Reset the belief and wait for the first observation of this episode."""
+        self.ports.reset_belief()
+        first = self.ports.wait_for_belief(lambda b: b.step >= 1, self.observation_timeout_s)
+        if first is None:
+            raise RecognitionAborted(
+                f'no observation of the cube within {self.observation_timeout_s:.1f} s (is '
+                'perception running and the cube in view?)')
+        return first
+
+    def _decide(self, belief, refused_after_failure):
+        """The planner's choice among the feasible actions: (decision, feasibility).
+
+        "Nothing feasible" is often transient (the skills have not yet seen a cube
+        pose estimate, or the estimate is momentarily stale), so it is re-checked
+        for up to the observation timeout before the recognition is aborted.
+        """
+        nodes = belief_array(belief, self.num_nodes)
+        deadline = self.clock() + self.observation_timeout_s
+        while True:
+            feasible = self.ports.check_feasibility()
+
+            def allowed(action, feasible=feasible):
+                return feasible.get(action, (True, ''))[0] and action not in refused_after_failure
+
+            try:
+                return self.planner.choose(nodes, feasible=allowed), feasible
+            except RuntimeError as error:
+                if refused_after_failure:
+                    # Every other action is infeasible: allow a retry of the failed one.
+                    refused_after_failure.clear()
+                    continue
+                if self.clock() > deadline:
+                    reasons = '; '.join(f'{a}: {r}' for a, (ok, r) in feasible.items() if not ok)
+                    raise RecognitionAborted(f'{error} ({reasons})') from error
+                self.sleep(FEASIBILITY_RETRY_S)
+
+    def _wait_for_evidence(self, expected_step):
+        """The belief with the action's evidence; after the timeout, the latest one."""
+        fresh = self.ports.wait_for_belief(lambda b: b.step >= expected_step,
+                                           self.observation_timeout_s)
+        if fresh is None:
+            self.log.warning(
+                'no fresh observation after the action within '
+                f'{self.observation_timeout_s:.1f} s; planning on the latest belief')
+            fresh = self.ports.wait_for_belief(lambda b: True, LATEST_BELIEF_WAIT_S)
+        return fresh
+
+
+__all__ = ['ABORTED', 'CANCELED', 'SUCCEEDED', 'EpisodePorts', 'EpisodeResult', 'EpisodeRunner',
+           'PosteriorStop', 'RecognitionAborted', 'StopCheck', 'belief_array', 'expected_gain',
+           'top_posterior']

@@ -1,0 +1,27 @@
+"""The planner node's own parameters as a ROS-free table (the model-set parameters are
+`abp_belief.model_set_config.MODEL_SET_SPECS`). The node declares both with
+`abp_common.parameters.declare_all` and reads them again at each Recognize goal, so a
+`ros2 param set` applies to the next episode. Add a parameter by adding a row here."""
+
+from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
+
+from .planner import PLANNER_NAMES
+
+PLANNER_SPECS = (
+    ParamSpec('planner_mode', STRING, 'abp', 'Default planner of a Recognize goal.',
+              choices=PLANNER_NAMES),
+    ParamSpec('alpha', DOUBLE, 0.1, 'Alg. 3 threshold on predicted aspect nodes, relative to '
+              'the max.', (0.0, 1.0)),
+    ParamSpec('max_actions', INT, 30, 'Default action budget of a Recognize goal.', (1, 1000)),
+    ParamSpec('posterior_threshold', DOUBLE, 0.95, 'Default stopping posterior of a Recognize '
+              'goal.', (0.5, 0.999999)),
+    ParamSpec('skill_timeout', DOUBLE, 180.0, 'Seconds a skill may take before it is '
+              'cancelled.', (1.0, 3600.0)),
+    ParamSpec('observation_timeout', DOUBLE, 20.0, 'Seconds to wait for a fresh observation '
+              'after an action before planning on the predicted belief.', (0.1, 600.0)),
+    ParamSpec('use_feasibility', BOOL, True, 'Ask abp/skills/check_feasibility before each '
+              'decision; infeasible actions fall through to the next best.'),
+    ParamSpec('planner_seed', INT, 0, 'Seed of the random planner.', (0, 2**31 - 1)),
+)
+
+__all__ = ['PLANNER_SPECS']

@@ -1,0 +1,244 @@
+"""The Recognize episode without DDS: stopping, re-plan after a failure, retry, the
+feasibility wait, missing observations and cancellation, on a fake clock."""
+
+import logging
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from abp_belief.cube import ACTIONS
+from abp_planner.episode import (
+    ABORTED,
+    CANCELED,
+    FEASIBILITY_RETRY_S,
+    SUCCEEDED,
+    EpisodeRunner,
+    PosteriorStop,
+    RecognitionAborted,
+    belief_array,
+    expected_gain,
+)
+from abp_planner.planner import Decision
+
+NUM_NODES = 96  # two models
+
+
+class FakeClock:
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self):
+        return self.now
+
+    def sleep(self, seconds):
+        self.now += seconds
+
+
+def belief(step, posterior):
+    return SimpleNamespace(step=step, probabilities=[posterior, 1.0 - posterior],
+                           object_ids=['a', 'b'], entropy=1.0, node_indices=[0, 48],
+                           node_probabilities=[posterior, 1.0 - posterior])
+
+
+class FakePlanner:
+    """Takes the first allowed action of `preference`; raises like the real one."""
+
+    def __init__(self, preference=ACTIONS):
+        self.preference = list(preference)
+        self.beliefs = []
+
+    def choose(self, nodes, feasible=None):
+        self.beliefs.append(nodes)
+        for action in self.preference:
+            if feasible is None or feasible(action):
+                index = ACTIONS.index(action)
+                gain = np.zeros(len(ACTIONS))
+                gain[index] = 0.5
+                return Decision(action, index, gain, gain, 1.0, 0.001)
+        raise RuntimeError('no feasible action: the motion planner refused everything')
+
+
+class FakePorts:
+    """A belief node and skills in one: each action raises the posterior by `gain`;
+    a successful skill gives a prediction and a correction (+2 steps), a failed one a
+    correction (+1). `observe=False` withholds observations."""
+
+    def __init__(self, clock, gain=0.2, fail=(), feasible=None, observe=True,
+                 first_posterior=0.5, cancel_after=None):
+        self.clock = clock
+        self.gain = gain
+        self.fail = set(fail)
+        self.feasible = feasible if feasible is not None else {}
+        self.observe = observe
+        self.belief = None
+        self.first_posterior = first_posterior
+        self.cancel_after = cancel_after
+        self.plans, self.feedback, self.executed, self.skills = [], [], [], []
+        self.feasibility_checks = 0
+
+    def reset_belief(self):
+        self.belief = belief(1 if self.observe else 0, self.first_posterior)
+
+    def wait_for_belief(self, predicate, timeout_s):
+        if self.belief is not None and predicate(self.belief):
+            return self.belief
+        self.clock.sleep(timeout_s)
+        return None
+
+    def latest_belief(self):
+        return self.belief
+
+    def check_feasibility(self):
+        self.feasibility_checks += 1
+        feasible = self.feasible
+        return feasible(self.clock()) if callable(feasible) else feasible
+
+    def run_skill(self, action):
+        self.skills.append(action)
+        if action in self.fail:
+            return False, f'{action} slipped', 3.0
+        step = self.belief.step + (2 if self.observe else 1)
+        self.belief = belief(step, min(1.0, self.belief.probabilities[0] + self.gain))
+        return True, '', 3.0
+
+    def cancel_requested(self):
+        return self.cancel_after is not None and len(self.executed) >= self.cancel_after
+
+    def publish_plan(self, decision, feasible):
+        self.plans.append(decision.action)
+
+    def publish_feedback(self, belief, decision, actions_taken):
+        self.feedback.append((belief.step, decision.action, actions_taken))
+
+    def publish_executed(self, action, sequence, success, reason, duration):
+        self.executed.append((action, sequence, success, reason))
+
+
+def run(ports, planner=None, threshold=0.95, max_actions=30, timeout=20.0):
+    clock = ports.clock
+    runner = EpisodeRunner(planner or FakePlanner(), ports, NUM_NODES,
+                           PosteriorStop(threshold, max_actions), timeout,
+                           logging.getLogger('episode'), clock=clock, sleep=clock.sleep)
+    return runner.run()
+
+
+def test_stops_when_the_first_observation_is_enough():
+    ports = FakePorts(FakeClock(), first_posterior=0.99)
+    result = run(ports)
+    assert (result.outcome, result.success, result.actions_taken) == (SUCCEEDED, True, 0)
+    assert result.reason.startswith('posterior 0.990 >=') and not ports.executed
+
+
+def test_acts_until_the_posterior_reaches_the_threshold():
+    ports = FakePorts(FakeClock(), gain=0.2)
+    planner = FakePlanner()
+    result = run(ports, planner, threshold=0.95)
+    assert result.outcome == SUCCEEDED and result.success
+    assert result.actions_taken == 3 and result.belief.probabilities[0] >= 0.95
+    assert [e[1] for e in ports.executed] == [1, 2, 3]
+    assert ports.plans == [e[0] for e in ports.executed] == ['ORBIT_P45'] * 3
+    assert [f[2] for f in ports.feedback] == [0, 1, 2]
+    # The planner gets the normalised node array, not a message or a filter.
+    assert planner.beliefs[0].shape == (NUM_NODES,)
+    assert planner.beliefs[0].sum() == pytest.approx(1.0)
+
+
+def test_action_budget_ends_without_success():
+    ports = FakePorts(FakeClock(), gain=0.0)
+    result = run(ports, max_actions=2)
+    assert (result.outcome, result.success) == (SUCCEEDED, False)
+    assert result.reason == 'action budget of 2 spent' and result.actions_taken == 2
+
+
+def test_failed_action_is_left_out_of_the_next_decision():
+    ports = FakePorts(FakeClock(), fail={'ORBIT_P45'})
+    run(ports)
+    assert ports.skills[:2] == ['ORBIT_P45', 'ORBIT_M45']
+    assert ports.executed[0] == ('ORBIT_P45', 1, False, 'ORBIT_P45 slipped')
+    # After a success the failed action may be chosen again.
+    assert ports.skills[2] == 'ORBIT_P45'
+
+
+def test_failed_action_is_retried_when_nothing_else_is_feasible():
+    only = {a: (a == 'LIFT', 'blocked') for a in ACTIONS}
+    ports = FakePorts(FakeClock(), fail={'LIFT'}, feasible=only)
+    result = run(ports, max_actions=3)
+    assert ports.skills == ['LIFT'] * 3
+    assert result.reason == 'action budget of 3 spent'
+
+
+def test_transiently_infeasible_actions_are_rechecked():
+    clock = FakeClock()
+    ports = FakePorts(clock, first_posterior=0.9,
+                      feasible=lambda now: {} if now >= 2.0 else
+                      {a: (False, 'no cube pose') for a in ACTIONS})
+    result = run(ports)
+    assert result.outcome == SUCCEEDED and ports.skills == ['ORBIT_P45']
+    assert ports.feasibility_checks == 1 + int(2.0 / FEASIBILITY_RETRY_S)
+
+
+def test_nothing_feasible_aborts_after_the_observation_timeout():
+    ports = FakePorts(FakeClock(), feasible={a: (False, 'too close') for a in ACTIONS})
+    result = run(ports, timeout=3.0)
+    assert result.outcome == ABORTED and not result.success
+    assert 'no feasible action' in result.reason and 'PUSH: too close' in result.reason
+    assert ports.clock() >= 3.0 and not ports.executed
+
+
+def test_no_first_observation_aborts():
+    ports = FakePorts(FakeClock(), observe=False)
+    result = run(ports, timeout=5.0)
+    assert result.outcome == ABORTED
+    assert result.reason.startswith('no observation of the cube within 5.0 s')
+
+
+def test_reset_failure_aborts():
+    ports = FakePorts(FakeClock())
+
+    def refuse():
+        raise RecognitionAborted('belief reset failed: no answer')
+
+    ports.reset_belief = refuse
+    result = run(ports)
+    assert (result.outcome, result.reason, result.belief) == \
+        (ABORTED, 'belief reset failed: no answer', None)
+
+
+def test_missing_observation_after_an_action_plans_on_the_latest_belief():
+    clock = FakeClock()
+    ports = FakePorts(clock, first_posterior=0.9)
+    ports.reset_belief()
+    first_run_skill = ports.run_skill
+
+    def skill_without_correction(action):
+        ok = first_run_skill(action)
+        ports.belief.step -= 1  # the prediction arrived, the correction did not
+        return ok
+
+    ports.reset_belief = lambda: None
+    ports.run_skill = skill_without_correction
+    result = run(ports, timeout=4.0)
+    assert result.outcome == SUCCEEDED and result.actions_taken == 1
+    assert clock() == pytest.approx(4.0)  # waited the observation timeout once
+
+
+def test_cancel_before_and_after_a_skill():
+    ports = FakePorts(FakeClock(), cancel_after=0)
+    result = run(ports)
+    assert (result.outcome, result.reason, result.actions_taken) == (CANCELED, 'cancelled', 0)
+    ports = FakePorts(FakeClock(), gain=0.0, cancel_after=1)
+    result = run(ports)
+    assert (result.outcome, result.actions_taken) == (CANCELED, 1)
+    assert len(ports.executed) == 1
+
+
+def test_helpers():
+    msg = belief(1, 0.75)
+    nodes = belief_array(msg, NUM_NODES)
+    assert nodes[0] == 0.75 and nodes[48] == 0.25 and nodes.sum() == 1.0
+    assert np.isnan(expected_gain(Decision('PUSH', 5, None, None, float('nan'), 0.0)))
+    stop = PosteriorStop(0.9, 4)
+    assert stop.check(belief(1, 0.9), 0).success
+    assert stop.check(belief(1, 0.5), 4) == (True, False, 'action budget of 4 spent')
+    assert not stop.check(belief(1, 0.5), 3).stop

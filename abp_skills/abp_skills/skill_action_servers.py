@@ -1,0 +1,250 @@
+"""ROS wiring of the skills' action servers: /abp/skills/{orbit,push,lift,flip}.
+
+A goal is accepted, then claimed (`SkillClaim`: one skill at a time across processes; a
+busy goal aborts with reason "rejected: busy: ..."), planned by the node's motion planner
+(`plans.SkillPlanner`, refused with a reason when it cannot be done) and run phase by
+phase: base motions closed-loop on /odom (`base_motion.OrbitTracker`), arm phases sent as
+one trajectory to every controller and waited for until the joints arrive
+(`skill_checks.ArrivalCheck`). Cancelling stops the robot and ends the goal canceled; a
+timeout, lost odometry or joints that do not arrive abort it (and stop the robot).
+"""
+
+import numpy as np
+import rclpy
+from builtin_interfaces.msg import Duration as DurationMsg
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+
+from abp_common import names
+from abp_msgs.action import Flip, Lift, Orbit, Push
+
+from .base_motion import OrbitTracker, plan_base_approach
+from .plans import PlanError
+from .robot_state import point_odom_to_base
+from .skill_checks import (
+    ArrivalCheck,
+    FeedbackThrottle,
+    Refused,
+    manual_goal_overrides,
+    sleep_on_clock,
+    timeout_reason,
+)
+
+SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
+
+
+class SkillActionServers:
+    """The action servers of `skills` on `node` (a SkillsNode)."""
+
+    def __init__(self, node, skills):
+        self.node = node
+        self.servers = [
+            ActionServer(node, SKILL_TYPES[skill], names.skill_action(skill),
+                         execute_callback=lambda handle, s=skill: self._execute(s, handle),
+                         goal_callback=lambda _goal: GoalResponse.ACCEPT,
+                         cancel_callback=lambda _handle: CancelResponse.ACCEPT,
+                         callback_group=node.callback_group)
+            for skill in skills]
+
+    # -- a goal, start to end --------------------------------------------------------------
+    def _execute(self, skill, goal_handle):
+        node = self.node
+        started = node.now()
+        why = node.claim.claim(skill, node.param('claim_settle_time'))
+        if why is not None:
+            node.get_logger().info(f'{skill}: {why}')
+            return self._finish(skill, goal_handle, 'abort', why, started)
+        node.commands.reset_moved()
+        try:
+            outcome, reason = self._run(skill, goal_handle, started)
+        except Refused as refusal:
+            outcome, reason = 'abort', str(refusal)
+        except Exception as error:  # never leave the robot moving
+            node.get_logger().error(f'{skill}: internal error: {error!r}')
+            outcome, reason = 'abort', f'internal error: {error}'
+        if outcome != 'succeed' and node.commands.moved:
+            node.commands.stop_motion()
+        node.claim.release()
+        return self._finish(skill, goal_handle, outcome, reason, started)
+
+    def _finish(self, skill, goal_handle, outcome, reason, started):
+        result = SKILL_TYPES[skill].Result()
+        result.success = outcome == 'succeed'
+        result.reason = reason
+        elapsed = max(0.0, self.node.now() - started)
+        result.duration = DurationMsg(sec=int(elapsed),
+                                      nanosec=int((elapsed - int(elapsed)) * 1e9))
+        if outcome == 'succeed':
+            goal_handle.succeed()
+        elif outcome == 'cancel' and goal_handle.is_cancel_requested:
+            goal_handle.canceled()
+        else:
+            goal_handle.abort()
+        text = f'{skill}: {outcome} after {elapsed:.1f} s' + (f' ({reason})' if reason else '')
+        if result.success:
+            self.node.get_logger().info(text)
+        else:
+            self.node.get_logger().warning(text)
+        return result
+
+    def _run(self, skill, goal_handle, started):
+        if skill == 'orbit':
+            return self._run_orbit(goal_handle, goal_handle.request, started)
+        overrides = manual_goal_overrides(skill, goal_handle.request)
+        return self._run_manual(skill, goal_handle, overrides, started)
+
+    def _check_goal(self, goal_handle, started):
+        """None to go on, or (outcome, reason) to stop now."""
+        if goal_handle.is_cancel_requested:
+            return 'cancel', 'canceled'
+        if not goal_handle.is_active:
+            return 'abort', 'goal no longer active'
+        late = timeout_reason(self.node.now() - started, self.node.param('timeout'))
+        if late:
+            return 'abort', late
+        if not rclpy.ok(context=self.node.context):
+            return 'abort', 'shutting down'
+        return None
+
+    def _feedback(self, skill, goal_handle, phase, progress):
+        fb = SKILL_TYPES[skill].Feedback()
+        fb.phase = phase
+        fb.progress = float(np.clip(progress, 0.0, 1.0))
+        goal_handle.publish_feedback(fb)
+
+    def _sleep_period(self):
+        sleep_on_clock(1.0 / self.node.param('control_rate'), self.node.now)
+
+    # -- the two kinds of motion -----------------------------------------------------------
+    def _drive(self, skill, goal_handle, started, plan, progress_of, head_q=None):
+        """Track a base plan (OrbitPlan) on /odom. Returns None or (outcome, reason).
+        `head_q`: (joints, cube height) to keep the camera on the cube while driving."""
+        node = self.node
+        tracker = OrbitTracker(
+            plan, node.motion_planner.config.base,
+            yaw_tolerance=np.radians(node.param('orbit_yaw_tolerance_deg')),
+            position_tolerance=node.param('orbit_position_tolerance'),
+            settle_time=max(node.param('settle_timeout'), 0.5))
+        t0 = node.now()
+        feedback = FeedbackThrottle()
+        while True:
+            stop = self._check_goal(goal_handle, started)
+            if stop:
+                return stop
+            pose = node.state.base_pose(node.param('max_state_age'), required=False)
+            if pose is None:
+                return 'abort', 'odometry lost: no recent /odom'
+            t = node.now() - t0
+            v, w, phase, done, ok = tracker.command(t, pose)
+            if done:
+                node.commands.stop_base()
+                if ok:
+                    return None
+                b, h, r = tracker.final_errors(pose)
+                return 'abort', (f'the base did not settle: bearing {np.degrees(b):.1f} deg, '
+                                 f'heading {np.degrees(h):.1f} deg, radius {100 * r:.1f} cm off')
+            node.commands.velocity(v, w)
+            if head_q is not None:
+                cube_base = point_odom_to_base(pose, np.array([*plan.cube_xy, head_q[1]]))
+                q = node.state.latest_joints()
+                node.commands.aim_head(q if q is not None else head_q[0], cube_base)
+            if feedback.due(t):
+                self._feedback(skill, goal_handle, phase,
+                               progress_of(min(t, plan.duration) / max(plan.duration, 1e-6)))
+            self._sleep_period()
+
+    def _move(self, skill, goal_handle, started, name, trajectory, progress_of):
+        """Send one phase trajectory and wait for it to end and the joints to arrive."""
+        node = self.node
+        t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'))
+        feedback = FeedbackThrottle()
+        arrival = ArrivalCheck(name, trajectory.joint_names, trajectory.end, trajectory.duration,
+                               node.param('goal_tolerance'), node.param('settle_timeout'))
+        idx = [node.kin.joint_index(n) for n in trajectory.joint_names]
+        while True:
+            stop = self._check_goal(goal_handle, started)
+            if stop:
+                return stop
+            t = node.now() - t0
+            if feedback.due(t):
+                frac = min(max(t, 0.0), trajectory.duration) / max(trajectory.duration, 1e-6)
+                self._feedback(skill, goal_handle, name, progress_of(frac))
+            if arrival.ended(t):
+                done, reason = arrival.check(t, node.joints()[idx])
+                if done:
+                    return ('abort', reason) if reason else None
+            self._sleep_period()
+
+    # -- the skills ------------------------------------------------------------------------
+    def _run_orbit(self, goal_handle, goal, started):
+        node = self.node
+        angle = float(goal.angle_deg)
+        cube_base, cube_odom = node.cube()
+        q = node.joints()
+        pose = node.base_pose()
+        radius = goal.radius if goal.radius > 0 else node.param('orbit_radius')
+        with node.plan_lock:
+            try:
+                plan = node.motion_planner.orbit_plan(angle, pose, cube_base, radius)
+            except (PlanError, ValueError) as error:
+                raise Refused(f'refused: {error}') from error
+            home = node.motion_planner.go_home(q, look=cube_base)
+        total = plan.duration + (home.duration if home is not None else 0.0)
+        done = 0.0
+        if home is not None:
+            stop = self._move('orbit', goal_handle, started, 'approach', home,
+                              lambda f: f * home.duration / total)
+            if stop:
+                return stop
+            done = home.duration
+        stop = self._drive('orbit', goal_handle, started, plan,
+                           lambda f: (done + f * plan.duration) / total,
+                           head_q=(node.joints(), cube_odom[2]))
+        if stop:
+            return stop
+        self._feedback('orbit', goal_handle, 'stroke', 1.0)
+        return 'succeed', ''
+
+    def _run_manual(self, skill, goal_handle, overrides, started):
+        node = self.node
+        cube_base, cube_odom = node.cube()
+        q = node.joints()
+        with node.plan_lock:
+            needed, ok, reason, cube_after = node.motion_planner.base_approach(cube_base)
+            if not ok:
+                raise Refused(f'refused: {reason}')
+            # Check the arm plan where the arms will work before moving anything.
+            plan = node.motion_planner.plan(skill, q, cube_after, **overrides)
+            config = node.motion_planner.config
+        if not plan.ok:
+            raise Refused(f'refused: {plan.reason}')
+        base_plan = None
+        if needed:
+            base_plan = plan_base_approach(node.base_pose(), cube_odom[:2],
+                                           config.manipulation_distance, config.base)
+        total = plan.duration + (base_plan.duration if base_plan is not None else 0.0)
+        done = 0.0
+        if base_plan is not None and base_plan.segments:
+            stop = self._drive(skill, goal_handle, started, base_plan,
+                               lambda f: f * base_plan.duration / total)
+            if stop:
+                return stop
+            done = base_plan.duration
+            cube_base = point_odom_to_base(node.base_pose(), cube_odom)
+            q = node.joints()
+            with node.plan_lock:
+                plan = node.motion_planner.plan(skill, q, cube_base, **overrides)
+            if not plan.ok:
+                return 'abort', f'after the base approach: {plan.reason}'
+            total = done + plan.duration
+        for phase in plan.phases:
+            start = done
+            stop = self._move(skill, goal_handle, started, phase.name, phase.trajectory,
+                              lambda f, s=start, d=phase.duration: (s + f * d) / total)
+            if stop:
+                return stop
+            done += phase.duration
+        self._feedback(skill, goal_handle, plan.phases[-1].name, 1.0)
+        return 'succeed', ''
+
+
+__all__ = ['SKILL_TYPES', 'SkillActionServers']

@@ -28,7 +28,6 @@ setup(
             'recognize = abp_bringup.recognize_client:main',
             'bag_recorder = abp_bringup.bag_recorder_node:main',
             'bag_player = abp_bringup.bag_player:main',
-            'graph_benchmark = abp_bringup.graph_benchmark:main',
         ],
     },
 )

@@ -20,7 +20,6 @@ setup(
         'console_scripts': [
             'artag_detector = abp_perception.artag_detector_node:main',
             'aspect_matcher = abp_perception.aspect_matcher_node:main',
-            'perception_benchmark = abp_perception.perception_benchmark:main',
         ],
     },
 )

@@ -23,8 +23,6 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_bridge = abp_sim_bridge.sim_bridge_node:main',
-            'bench_render = abp_sim_bridge.bench_render:main',
-            'sim_bridge_benchmark = abp_sim_bridge.bench_sim_bridge:main',
         ],
     },
 )

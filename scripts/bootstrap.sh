@@ -16,7 +16,7 @@ VENV="$REPO/.venv"
 REQ_DIR="$REPO/requirements"
 ROS_DISTRO_DIR="/opt/ros/jazzy"
 PACKAGES=(abp_msgs abp_common abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge
-          abp_bringup)
+          abp_bringup abp_bench)
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
 die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }

@@ -15,7 +15,8 @@
 #   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
 #   --planner MODE       random | abp | abp2 | abp3 | cost                   (default abp)
 #   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
-#   --params FILE        extra parameters YAML (<node>: ros__parameters: ...), applied last
+#   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
+#   --namespace NS       run every node under the namespace /NS (topics, services, actions)
 #   --record DIR         record the graph's topics to a rosbag2 (MCAP) bag in DIR
 #   --result-json FILE   write the result (object, posterior, actions, time, ground truth)
 #   --speedup X          sim time speed-up (default 10)
@@ -26,8 +27,8 @@ set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=abp; seed=0; params=""; record=""; result_json=""
-speedup=10; max_actions=30; timeout=1800; log_dir=""
-usage() { sed -n '2,24p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""
+usage() { sed -n '2,25p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -43,32 +44,56 @@ while [ $# -gt 0 ]; do
     --max-actions) max_actions="${2:?--max-actions needs a value}"; shift 2 ;;
     --timeout) timeout="${2:?--timeout needs a value}"; shift 2 ;;
     --log-dir) log_dir="${2:?--log-dir needs a directory}"; shift 2 ;;
+    --namespace) namespace="${2?--namespace needs a value}"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     *) die "unknown option $1 (see --help)" ;;
   esac
 done
-case "$planner" in random|abp|abp2|abp3|cost) ;; *) die "--planner must be random, abp, abp2, abp3 or cost" ;; esac
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
 [[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
 [ -z "$record" ] || [ ! -e "$record" ] || die "--record $record exists: rosbag2 never overwrites a bag"
+namespace="${namespace#/}"; namespace="${namespace%/}"
+[ -z "$namespace" ] || [[ "$namespace" =~ ^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$ ]] \
+  || die "--namespace must be a ROS namespace such as robot1"
 
-# Model-set parameters shared by every node that loads the model set.
-model_args=(-p "seed:=$seed")
+# Model-set parameters shared by every node that loads the model set: one `/**:` file.
+model_yaml=(seed "$seed")
 case "$models" in
-  robot|full|visual) model_args+=(-p "model_set:=$models") ;;
-  random:*) model_args+=(-p "model_set:=random" -p "model_set_size:=${models#random:}") ;;
+  robot|full|visual) model_yaml+=(model_set "$models") ;;
+  random:*) [[ "${models#random:}" =~ ^[0-9]+$ ]] || die "--models random:N needs a number N"
+            model_yaml+=(model_set random model_set_size "${models#random:}") ;;
   *) [ -f "$models" ] || die "--models: $models is neither a set name nor a file"
-     model_args+=(-p "model_file:=$(cd "$(dirname "$models")" && pwd)/$(basename "$models")") ;;
+     file="$(cd "$(dirname "$models")" && pwd)/$(basename "$models")"
+     model_yaml+=(model_file "'${file//\'/\'\'}'") ;;
 esac
 
 "$REPO/scripts/bootstrap.sh"
 # shellcheck disable=SC1091
 set +u; source "$REPO/scripts/env.sh"; set -u
 
+# The planner modes and the topic names the script needs, from the packages that define them.
+planners="$(python -c 'from abp_planner.planner import PLANNER_NAMES; print(*PLANNER_NAMES)')"
+[[ " $planners " == *" $planner "* ]] || die "--planner must be one of: $planners"
+mapfile -t topics < <(python - "$namespace" <<'PY'
+import sys
+from abp_common import names
+for name in (names.BELIEF, names.ASPECT_OBSERVATION):
+    print(names.absolute(name, sys.argv[1]))
+PY
+)
+belief_topic="${topics[0]}"; observation_topic="${topics[1]}"
+
 config="$(python -c 'from ament_index_python.packages import get_package_share_directory as g; print(g("abp_bringup"))')/config/abp.yaml"
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$log_dir"
+model_params="$log_dir/model_set.yaml"
+{ echo "/**:"; echo "  ros__parameters:"
+  for ((i = 0; i < ${#model_yaml[@]}; i += 2)); do
+    echo "    ${model_yaml[i]}: ${model_yaml[i+1]}"
+  done; } > "$model_params"
+ns_args=()
+[ -n "$namespace" ] && ns_args=(-r "__ns:=/$namespace")
 
 pids=()
 cleanup() {
@@ -97,9 +122,9 @@ start() {
   local sim_time=(-p "use_sim_time:=true")
   [ "$robot" = 1 ] && sim_time=()
   [ "$package/$executable" = abp_sim_bridge/sim_bridge ] && sim_time=()
-  local ros_args=(--ros-args --params-file "$config")
+  local ros_args=(--ros-args --params-file "$config" --params-file "$model_params")
   [ -n "$params" ] && ros_args+=(--params-file "$params")
-  ros_args+=("${sim_time[@]}" "$@")
+  ros_args+=("${ns_args[@]}" "${sim_time[@]}" "$@")
   if command -v ros2 >/dev/null 2>&1; then
     ros2 run "$package" "$executable" "${ros_args[@]}" > "$log_dir/$executable.log" 2>&1 &
   else
@@ -109,19 +134,18 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo sim ) graph, models $models, planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo sim ) graph${namespace:+ under /$namespace}, models $models, planner $planner, seed $seed; logs in $log_dir"
 if [ "$robot" = 0 ]; then
-  start abp_sim_bridge sim_bridge "${model_args[@]}" -p "model_index:=$object" \
-    -p "cube_seed:=$seed" -p "speedup:=$speedup"
+  start abp_sim_bridge sim_bridge -p "model_index:=$object" -p "cube_seed:=$seed" \
+    -p "speedup:=$speedup"
 fi
 start abp_perception artag_detector
-start abp_perception aspect_matcher "${model_args[@]}"
-start abp_belief belief "${model_args[@]}"
+start abp_perception aspect_matcher
+start abp_belief belief
 # The four action servers in one process: four processes, each with its own executor
 # taking /joint_states, /odom and /clock, cost about 1.2 cores of the 2 when idle.
 start abp_skills skill_servers
-start abp_planner planner "${model_args[@]}" -p "planner_mode:=$planner" \
-  -p "max_actions:=$max_actions"
+start abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
 if [ -n "$record" ]; then
   start abp_bringup bag_recorder -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
 fi
@@ -141,8 +165,8 @@ done
 if [ -n "$record" ]; then
   # Subscriptions match their publishers some time after a node starts: wait until
   # the recorder hears the belief and the observations, so the bag has the episode's start.
-  wanted=(/abp/belief)
-  [ "$robot" = 0 ] && wanted+=(/abp/aspect_observation)
+  wanted=("$belief_topic")
+  [ "$robot" = 0 ] && wanted+=("$observation_topic")
   for topic in "${wanted[@]}"; do
     for _ in $(seq 300); do
       grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null && break
@@ -155,6 +179,7 @@ fi
 
 client_args=(--planner "$planner" --max-actions "$max_actions" --timeout "$timeout")
 [ -n "$result_json" ] && client_args+=(--result-json "$result_json")
+[ -n "$namespace" ] && client_args+=(--ros-args "${ns_args[@]}")
 # In the background with `wait`, so that a SIGINT/SIGTERM sent to this script runs
 # its trap at once (bash defers traps while a foreground child runs).
 "$REPO/install/abp_bringup/lib/abp_bringup/recognize" "${client_args[@]}" &

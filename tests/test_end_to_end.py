@@ -5,7 +5,8 @@ belief, four skill servers, planner) and the `recognize` client drives one
 Recognize goal; the hidden cube is seeded. Eccentric twins are visually identical
 to their uniform sibling, so recognising them proves that the planner chose the
 manual action that separates them and that the sim's physics, the skills and the
-perception agree.
+perception agree. The uniform cube's episode runs the graph under a namespace
+(`--namespace robot1`: every node, topic, service and action under /robot1).
 """
 
 import json
@@ -39,15 +40,20 @@ def twin_with_mass(models, mass_name):
     return next(i for i, name in enumerate(models.names) if name.endswith("/" + mass_name))
 
 
-@pytest.mark.parametrize("mass", ["u", "m+z", "m+y"])
-def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, mass):
+@pytest.mark.parametrize("mass, namespace", [("u", "robot1"), ("m+z", ""), ("m+y", "")])
+def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, mass, namespace):
     models = robot_set(seed=SEED)
     if mass == "u":
         index = next(i for i in range(models.num_models) if models.mass[i] == 0)
     else:
         index = twin_with_mass(models, mass)
-    code, result, trace = run_episode(tmp_path, index)
+    code, result, trace = run_episode(tmp_path, index,
+                                      ("--namespace", namespace) if namespace else ())
     assert code == 0, trace
+    if namespace:
+        assert f"graph under /{namespace}" in trace
+        planner_log = (tmp_path / f"logs-{index}" / "planner.log").read_text()
+        assert f"[{namespace}.planner]" in planner_log
     assert result["ground_truth"] == models.names[index]
     assert result["correct"] and result["object_id"] == models.names[index], trace
     assert result["posterior"] >= 0.95

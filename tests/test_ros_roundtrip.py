@@ -15,16 +15,14 @@ rclpy = pytest.importorskip("rclpy")
 from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
+from abp_common import qos  # noqa: E402
 from abp_msgs.action import Orbit  # noqa: E402
 from abp_msgs.srv import CheckFeasibility, ResetBelief  # noqa: E402
 from tests.helpers.echo_node import message_types  # noqa: E402
 from tests.helpers.populate import populate  # noqa: E402
 
 ECHO_NODE = pathlib.Path(__file__).parent / "helpers" / "echo_node.py"
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE,
-                      durability=QoSDurabilityPolicy.VOLATILE)
 
 
 @pytest.fixture
@@ -56,8 +54,8 @@ def test_every_message_round_trips(echo_process, node, spin):
     for name, msg_type in types.items():
         node.create_subscription(
             msg_type, f"/roundtrip/out/{name}",
-            lambda msg, name=name: received.setdefault(name, msg), RELIABLE)
-        publishers[name] = node.create_publisher(msg_type, f"/roundtrip/in/{name}", RELIABLE)
+            lambda msg, name=name: received.setdefault(name, msg), qos.RELIABLE)
+        publishers[name] = node.create_publisher(msg_type, f"/roundtrip/in/{name}", qos.RELIABLE)
         sent[name] = populate(msg_type(), seed=len(name))
     # Wait for discovery both ways before publishing, then resend until echoed.
     assert spin(executor, lambda: all(p.get_subscription_count() > 0

@@ -11,9 +11,9 @@ import time
 
 import numpy as np
 
-from . import population
-from .cube import ACTIONS
-from .filter import BeliefFilter
+from abp_belief import population
+from abp_belief.cube import ACTIONS
+from abp_belief.filter import BeliefFilter
 
 
 def _matrix_bytes(matrix) -> int:

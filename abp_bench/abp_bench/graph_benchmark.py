@@ -27,19 +27,14 @@ import time
 import numpy as np
 import rclpy
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import (
-    QoSDurabilityPolicy,
-    QoSProfile,
-    QoSReliabilityPolicy,
-    qos_profile_sensor_data,
-)
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 
 from abp_belief.population import model_set_from_config
+from abp_common import names, qos
 from abp_msgs.msg import AspectObservation, Belief
 
-FAULTS_YAML = """sim_bridge:
+FAULTS_YAML = """/**/sim_bridge:
   ros__parameters:
     p_slip_grasp: 0.1
     p_missed_push: 0.1
@@ -68,13 +63,11 @@ class LatencyProbe:
         self.image_times = {}
         self.latencies_ms = []
         self.observation_latencies_ms = []
-        self.node.create_subscription(Image, "/camera/image_raw", self._on_image,
-                                      qos_profile_sensor_data)
-        latched = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE,
-                             durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-        self.node.create_subscription(Belief, "/abp/belief", self._on_belief, latched)
-        self.node.create_subscription(AspectObservation, "/abp/aspect_observation",
-                                      self._on_observation, 10)
+        self.node.create_subscription(Image, names.IMAGE, self._on_image, qos.SENSOR_DATA)
+        self.node.create_subscription(Belief, names.BELIEF, self._on_belief,
+                                      qos.LATCHED_READER)
+        self.node.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
+                                      self._on_observation, qos.RELIABLE)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._stop = threading.Event()

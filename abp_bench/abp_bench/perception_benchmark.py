@@ -5,7 +5,7 @@
                          [--threads 1]
                          [--update-doc docs/BENCHMARKS.md]
 
-Scenes come from the sim bridge's renderer (``abp_perception.scenes``): a random model
+Scenes come from the sim bridge's renderer (``abp_bench.scenes``): a random model
 of the full 1470-model set (n_tags = 7) in a random one of its 48 states, turned by a
 yaw error of up to +-8 deg, seen from 0.5-2.5 m at 25-45 deg elevation, anywhere in the
 image (look offset up to 40 % of the half image), with 2 distractor tags beside it (one
@@ -32,8 +32,8 @@ import time
 import cv2
 import numpy as np
 
-from .detector import TagDetector
-from .matcher import AspectMatcher, features_from_detections
+from abp_perception.detector import TagDetector
+from abp_perception.matcher import AspectMatcher, features_from_detections
 
 DISTANCES = (0.5, 1.0, 1.5, 2.0, 2.5)
 NOISE_LEVELS = {"clean": (0.0, 0.0), "default": (0.6, 2.0), "noisy": (1.0, 5.0),
@@ -43,12 +43,12 @@ GOALS = {"recall": 0.99, "precision": 0.999, "detect_ms": 10.0, "centre_mm": 5.0
 
 
 def _sim_bridge_effects():
-    from abp_sim_bridge.renderer import ImageEffects
+    from abp_sim_bridge.flat_renderer import ImageEffects
     return ImageEffects(blur_sigma=0.5, noise_std=1.0)
 
 
 def _effects(level):
-    from abp_sim_bridge.renderer import ImageEffects
+    from abp_sim_bridge.flat_renderer import ImageEffects
     blur, noise = NOISE_LEVELS[level]
     return ImageEffects(blur_sigma=blur, noise_std=noise)
 
@@ -283,8 +283,7 @@ def main(argv=None):
         parser.error("need 0 < --match-min < --match-max")
 
     from abp_belief.population import full_set
-
-    from .scenes import SceneGenerator
+    from abp_bench.scenes import SceneGenerator
 
     cv2.setNumThreads(args.threads)
     models = full_set(7)
@@ -334,10 +333,10 @@ def main(argv=None):
         f"{args.threads} thread(s); wall-clock medians beside them. Machine: {machine}.",
         "",
         "Reproduce (after `scripts/bootstrap.sh && source scripts/env.sh`; on a robot "
-        "`ros2 run abp_perception perception_benchmark ...`):",
+        "`ros2 run abp_bench perception_benchmark ...`):",
         "",
         "```",
-        f"install/abp_perception/lib/abp_perception/{command.strip()}",
+        f"install/abp_bench/lib/abp_bench/{command.strip()}",
         "```",
         "",
         "### Goals",

@@ -1,7 +1,7 @@
 """Benchmark of the ARcube renderer: median time per 640x480 frame on one core, and
 optionally the ArUco + IPPE_SQUARE pose errors of the rendered tags.
 
-    python -m abp_sim_bridge.bench_render [--frames 300] [--encoding bgr8] [--pose-errors]
+    render_benchmark [--frames 300] [--encoding bgr8] [--pose-errors]
 """
 
 import argparse
@@ -11,7 +11,7 @@ import time
 import cv2
 import numpy as np
 
-from abp_sim_bridge.renderer import (
+from abp_sim_bridge.flat_renderer import (
     ArcubeRenderer,
     Distractor,
     ImageEffects,

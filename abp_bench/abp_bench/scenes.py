@@ -1,7 +1,8 @@
 """Rendered ARcube scenes with ground truth, for the tests and the perception benchmark.
 
-Uses the sim bridge's renderer (``abp_sim_bridge.renderer``); no rclpy. The world
-frame is the robot's base frame: base_link at the origin, z up. The camera sits
+Uses the sim bridge's renderer (``abp_sim_bridge.flat_renderer``); no rclpy. The robot's
+head is aimed by the project's one head-aiming rule (``abp_description.kinematics.look_at``).
+The world frame is the robot's base frame: base_link at the origin, z up. The camera sits
 above the base origin and looks at the cube (``distance`` from the camera to the
 cube centre, ``elevation`` above the horizontal). The cube is placed in its discrete
 state (docs/MODEL.md: ``R(up, yaw)`` maps body -> V, V's x points horizontally from
@@ -17,7 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abp_belief import cube as cube_model
-from abp_sim_bridge.renderer import (
+from abp_description.frames import rot_z
+from abp_description.kinematics import look_at as aim_head
+from abp_sim_bridge.flat_renderer import (
     ArcubeRenderer,
     Distractor,
     ImageEffects,
@@ -25,8 +28,7 @@ from abp_sim_bridge.renderer import (
     tag_object_points,
 )
 
-__all__ = ["Scene", "SceneGenerator", "TruthTag", "default_camera", "look_at_joints",
-           "rot_z"]
+__all__ = ["Scene", "SceneGenerator", "TruthTag", "default_camera"]
 
 BORDER_MARGIN_PX = 3.0      # ArUco's default minDistanceToBorder
 DEFAULT_K = np.array([[554.256, 0.0, 319.5], [0.0, 554.256, 239.5], [0.0, 0.0, 1.0]])
@@ -40,11 +42,6 @@ def default_camera():
         return cam.K, cam.width, cam.height
     except Exception:  # noqa: BLE001 -- description not installed / no yaml: use the default
         return DEFAULT_K.copy(), 640, 480
-
-
-def rot_z(rad):
-    c, s = np.cos(rad), np.sin(rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 @dataclass
@@ -150,8 +147,9 @@ class SceneGenerator:
     def render_robot(self, kinematics, faces, state, centre, yaw_error_deg=0.0,
                      distractors=(), effects=None, q=None):
         """A scene seen by the robot's head camera: base_link at the origin, the head
-        panned and tilted (``look_at_joints``) to the cube centre. Returns (scene, q)."""
-        q = look_at_joints(kinematics, centre, q)
+        panned and tilted (``abp_description.kinematics.look_at``, from `q` or the neutral
+        pose) to the cube centre. Returns (scene, q)."""
+        q, _ = aim_head(kinematics, kinematics.neutral() if q is None else q, centre)
         scene = self.render_view(kinematics.camera_pose(q), faces, state, centre,
                                  yaw_error_deg, distractors, effects)
         cam = scene.camera_pose[:3, 3]
@@ -228,18 +226,3 @@ class SceneGenerator:
                                  self._inside(px), False))
         return tags
 
-
-def look_at_joints(kinematics, target, q=None, iterations=8):
-    """Joint positions with the head panned and tilted so that the camera's optical axis
-    passes through `target` (base frame), within the joint limits."""
-    q = kinematics.neutral() if q is None else np.array(q, dtype=np.float64)
-    pan = kinematics.joint_index("head_pan_joint")
-    tilt = kinematics.joint_index("head_tilt_joint")
-    target = np.asarray(target, dtype=np.float64)
-    for _ in range(iterations):
-        pose = kinematics.camera_pose(q)
-        d = pose[:3, :3].T @ (target - pose[:3, 3])        # optical frame: x right, y down
-        q[pan] -= np.arctan2(d[0], d[2])
-        q[tilt] += np.arctan2(d[1], d[2])
-        q = kinematics.clip(q)
-    return q

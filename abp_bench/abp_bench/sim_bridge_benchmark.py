@@ -21,11 +21,10 @@ import numpy as np
 
 def _render_time(encoding, noise_bank=8, frames=100):
     from abp_description import camera_intrinsics
-    from abp_description.kinematics import RobotKinematics
-
-    from .renderer import ArcubeRenderer, ImageEffects
-    from .sim_world import look_at
-    from .world import Cube, rot_z
+    from abp_description.frames import rot_z
+    from abp_description.kinematics import RobotKinematics, look_at_world
+    from abp_sim_bridge.flat_renderer import ArcubeRenderer, ImageEffects
+    from abp_sim_bridge.rules_physics import Cube
 
     kin = RobotKinematics()
     intr = camera_intrinsics()
@@ -35,7 +34,7 @@ def _render_time(encoding, noise_bank=8, frames=100):
     times = []
     for k in range(frames):
         cube = Cube.on_floor(0.40 + 0.3 * (k % 3), 0.0, rot_z(np.radians(7 * k)))
-        q = look_at(kin, kin.neutral(), (0, 0, 0), cube.position)
+        q, _ = look_at_world(kin, kin.neutral(), (0.0, 0.0, 0.0), cube.position)
         cam = kin.camera_pose(q)
         t0 = time.perf_counter()
         renderer.render(cam, cube.pose(), (0, 1, 2, 3, 4, 5))
@@ -44,10 +43,10 @@ def _render_time(encoding, noise_bank=8, frames=100):
 
 
 def _tick_time(ticks=2000):
-    from .sim_world import SimWorld
-    from .world import Cube, World
+    from abp_sim_bridge.rules_physics import Cube, World
+    from abp_sim_bridge.rules_world import RulesWorld
 
-    sim = SimWorld(World(Cube.on_floor(0.4, 0.0), np.zeros(3)))
+    sim = RulesWorld(World(Cube.on_floor(0.4, 0.0), np.zeros(3)))
     sim.set_cmd_vel(0.1, 0.2)
     t0 = time.perf_counter()
     for i in range(ticks):
@@ -66,9 +65,10 @@ def _executable():
 def _measure_node(speedup, encoding, seconds, camera_rate):
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
     from rosgraph_msgs.msg import Clock
     from sensor_msgs.msg import Image, JointState
+
+    from abp_common import names, qos
 
     proc = subprocess.Popen(
         [_executable(), '--ros-args', '-p', f'speedup:={float(speedup)}', '-p',
@@ -80,7 +80,7 @@ def _measure_node(speedup, encoding, seconds, camera_rate):
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     got = {'clock': [], 'joint_states': [], 'image': []}
-    reliable = QoSProfile(depth=1000, reliability=QoSReliabilityPolicy.RELIABLE)
+    reliable = qos.reliable(1000)
 
     def stamp_of(msg):
         s = msg.clock if isinstance(msg, Clock) else msg.header.stamp
@@ -88,10 +88,9 @@ def _measure_node(speedup, encoding, seconds, camera_rate):
 
     def collect(name):
         return lambda msg: got[name].append((time.monotonic(), stamp_of(msg)))
-    node.create_subscription(Clock, '/clock', collect('clock'), reliable)
-    node.create_subscription(JointState, '/joint_states', collect('joint_states'), reliable)
-    node.create_subscription(Image, '/camera/image_raw', collect('image'),
-                             qos_profile_sensor_data)
+    node.create_subscription(Clock, names.CLOCK, collect('clock'), reliable)
+    node.create_subscription(JointState, names.JOINT_STATES, collect('joint_states'), reliable)
+    node.create_subscription(Image, names.IMAGE, collect('image'), qos.SENSOR_DATA)
     try:
         deadline = time.monotonic() + 30
         while not got['clock'] and time.monotonic() < deadline:

@@ -13,11 +13,12 @@ import time
 
 import numpy as np
 
+from abp_belief.cube import ACTIONS
+from abp_description.controllers import BODY_JOINTS
 from abp_description.kinematics import RobotKinematics
-
-from .ik import BODY_JOINTS
-from .plans import ACTIONS, SkillPlanner
-from .trajectories import joint_trajectory, path_profile, plan_orbit
+from abp_skills.base_motion import plan_orbit
+from abp_skills.motion_profiles import joint_trajectory, path_profile
+from abp_skills.plans import SkillPlanner
 
 
 def _time(fn, repeats):

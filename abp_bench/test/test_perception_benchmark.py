@@ -1,6 +1,6 @@
 """The perception benchmark runs end to end (tiny sizes) and edits only its own section."""
 
-from abp_perception import perception_benchmark
+from abp_bench import perception_benchmark
 
 
 def test_benchmark_runs_and_prints_the_tables(capsys):

@@ -4,6 +4,11 @@ Plain module (no rclpy): the typestore with abp_msgs registered from the
 installed .msg files, the graph's topic list, a writer that takes serialized
 (CDR) messages as DDS delivers them, and a reader. Bags written here are
 ordinary rosbag2 bags: `ros2 bag info` / `ros2 bag play` read them on a robot.
+
+Topics in a bag are absolute, as rosbag2 records them: a graph under the namespace
+/robot1 gives /robot1/abp/belief. The graph's own names are relative
+(abp_common.names); `graph_topics(namespace)` resolves them, `graph_name(topic)` maps
+an absolute topic back to the graph's name (for its QoS).
 """
 
 import pathlib
@@ -12,22 +17,68 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-# The graph's topics and types; images are large and recorded only on request.
+from abp_common import names
+from abp_common.param_spec import BOOL, STRING, STRING_ARRAY, ParamSpec
+
+# The graph's topics (relative names) and types; images are large and recorded only
+# on request.
 GRAPH_TOPICS = {
-    "/abp/tag_detections": "abp_msgs/msg/TagDetectionArray",
-    "/abp/aspect_observation": "abp_msgs/msg/AspectObservation",
-    "/abp/belief": "abp_msgs/msg/Belief",
-    "/abp/executed_action": "abp_msgs/msg/ExecutedAction",
-    "/abp/plan": "abp_msgs/msg/PlanStep",
-    "/abp/sim/ground_truth": "abp_msgs/msg/SimGroundTruth",
-    "/joint_states": "sensor_msgs/msg/JointState",
-    "/odom": "nav_msgs/msg/Odometry",
-    "/camera/camera_info": "sensor_msgs/msg/CameraInfo",
+    names.TAG_DETECTIONS: "abp_msgs/msg/TagDetectionArray",
+    names.ASPECT_OBSERVATION: "abp_msgs/msg/AspectObservation",
+    names.BELIEF: "abp_msgs/msg/Belief",
+    names.EXECUTED_ACTION: "abp_msgs/msg/ExecutedAction",
+    names.PLAN: "abp_msgs/msg/PlanStep",
+    names.GROUND_TRUTH: "abp_msgs/msg/SimGroundTruth",
+    names.JOINT_STATES: "sensor_msgs/msg/JointState",
+    names.ODOM: "nav_msgs/msg/Odometry",
+    names.CAMERA_INFO: "sensor_msgs/msg/CameraInfo",
 }
-IMAGE_TOPICS = {"/camera/image_raw": "sensor_msgs/msg/Image"}
-LATCHED_TOPICS = {"/abp/belief", "/abp/sim/ground_truth"}
-SENSOR_TOPICS = {"/camera/image_raw", "/camera/camera_info"}
+IMAGE_TOPICS = {names.IMAGE: "sensor_msgs/msg/Image"}
+LATCHED_TOPICS = {names.BELIEF, names.GROUND_TRUTH}
+SENSOR_TOPICS = {names.IMAGE, names.CAMERA_INFO}
 STORAGE = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+
+# The bag_recorder node's parameters (declared with abp_common.parameters.declare_all).
+RECORDER_SPECS = (
+    ParamSpec("output", STRING, "", "Directory of the new bag (must not exist).",
+              read_only=True),
+    ParamSpec("topics", STRING_ARRAY, None, "Topics to record, relative (resolved in the "
+              "recorder's namespace) or absolute; empty = the graph's topics (see "
+              "abp_bringup.bag).", read_only=True),
+    ParamSpec("record_images", BOOL, False, f"Also record {names.IMAGE} (large).",
+              read_only=True),
+    ParamSpec("storage", STRING, "mcap", "rosbag2 storage.", read_only=True,
+              choices=tuple(STORAGE)),
+)
+
+
+def graph_topics(namespace="", images=False):
+    """{absolute topic: msgtype} of the graph's topics under `namespace`."""
+    topics = {**GRAPH_TOPICS, **(IMAGE_TOPICS if images else {})}
+    return {names.absolute(name, namespace): msgtype for name, msgtype in topics.items()}
+
+
+def graph_name(topic):
+    """The graph's (relative) name that the absolute `topic` resolves, in any namespace;
+    '' for a topic that is not the graph's."""
+    for name in (*GRAPH_TOPICS, *IMAGE_TOPICS):
+        if topic == name or topic.endswith("/" + name):
+            return name
+    return ""
+
+
+def recorded_topics(wanted=(), record_images=False, namespace=""):
+    """{absolute topic: msgtype} a recorder in `namespace` records: the `wanted` topics
+    (relative names resolved in the namespace), else the graph's topics."""
+    known = graph_topics(namespace, images=True)
+    wanted = [names.absolute(t, namespace) for t in (wanted or ()) if t]
+    if not wanted:
+        return graph_topics(namespace, images=record_images)
+    unknown = [t for t in wanted if t not in known]
+    if unknown:
+        raise ValueError(f"topics {unknown} are not graph topics; known: "
+                         f"{', '.join(sorted(known))}")
+    return {t: known[t] for t in wanted}
 
 
 class BagError(Exception):

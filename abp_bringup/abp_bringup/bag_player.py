@@ -1,13 +1,16 @@
 """`bag_player`: replays a rosbag2 bag (MCAP or sqlite3) into the graph.
 
     bag_player BAG [--topics T ...] [--rate R | --fast] [--wait-for TOPIC ...]
+               [--ros-args ...]
 
-Messages are published serialized, as recorded, with the QoS each topic uses in
-the graph. --rate 1 keeps the recorded timing; --fast publishes as fast as
-the subscribers take it. DDS keeps the order within a topic only, so with
---fast a subscriber that falls behind may take messages of two topics out of
-their recorded order; replay at a rate when that order matters. --wait-for
-waits until each named topic has a subscriber before the first message is sent.
+Messages are published serialized, as recorded, on the bag's (absolute) topics, with
+the QoS each topic uses in the graph. Topic names given here may be relative: they are
+resolved in the player's namespace (`--ros-args -r __ns:=/robot1`). --rate 1 keeps the
+recorded timing; --fast publishes as fast as the subscribers take it. DDS keeps the
+order within a topic only, so with --fast a subscriber that falls behind may take
+messages of two topics out of their recorded order; replay at a rate when that order
+matters. --wait-for waits until each named topic has a subscriber before the first
+message is sent.
 """
 
 import argparse
@@ -16,6 +19,9 @@ import time
 
 import rclpy
 from rclpy.executors import ExternalShutdownException
+from rclpy.utilities import remove_ros_args
+
+from abp_common import names
 
 from .bag import BagError, bag_topics, read_bag
 from .bag_recorder_node import message_class, topic_qos
@@ -57,9 +63,13 @@ def play(publishers, messages, rate, fast, gap):
 
 
 def main(argv=None):
-    args = parse_args(sys.argv[1:] if argv is None else argv)
-    rclpy.init()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse_args(remove_ros_args(["bag_player", *argv])[1:])
+    rclpy.init(args=["bag_player", *argv])
     node = rclpy.create_node("bag_player")
+    namespace = node.get_namespace()
+    args.topics = [names.absolute(t, namespace) for t in args.topics or ()]
+    args.wait_for = [names.absolute(t, namespace) for t in args.wait_for]
     try:
         topics = bag_topics(args.bag)
         if args.topics:

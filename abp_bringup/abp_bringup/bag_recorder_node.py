@@ -2,25 +2,33 @@
 
 Messages are taken serialized from DDS (no deserialisation) and written with the
 node's clock as receive time, so with use_sim_time the bag is in sim time.
-Parameters: output (a new directory), topics (names; empty = the graph's topics),
-record_images, storage (mcap | sqlite3). The bag is closed on Ctrl-C / shutdown.
+Parameters (bag.RECORDER_SPECS): output (a new directory), topics (names; empty = the
+graph's topics), record_images, storage (mcap | sqlite3). Topics are resolved in the
+node's namespace and written to the bag with their absolute names (a graph under
+/robot1 gives /robot1/abp/belief). The bag is closed on Ctrl-C / shutdown.
 """
 
 import importlib
 import sys
 
-from rcl_interfaces.msg import ParameterDescriptor, ParameterType
 from rclpy.node import Node
-from rclpy.qos import (
-    QoSDurabilityPolicy,
-    QoSProfile,
-    QoSReliabilityPolicy,
-    qos_profile_sensor_data,
+
+from abp_common import qos
+from abp_common.node_runner import run_node
+from abp_common.parameters import declare_all
+
+from .bag import (
+    LATCHED_TOPICS,
+    RECORDER_SPECS,
+    SENSOR_TOPICS,
+    BagError,
+    BagWriter,
+    graph_name,
+    recorded_topics,
 )
 
-from abp_belief.node_main import run_node
-
-from .bag import GRAPH_TOPICS, IMAGE_TOPICS, LATCHED_TOPICS, SENSOR_TOPICS, BagError, BagWriter
+# Depth of the reliable event topics: the writer must not drop a burst.
+EVENT_DEPTH = 100
 
 
 def message_class(msgtype):
@@ -29,42 +37,25 @@ def message_class(msgtype):
 
 
 def topic_qos(topic):
-    if topic in SENSOR_TOPICS:
-        return qos_profile_sensor_data
-    if topic in LATCHED_TOPICS:
-        return QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                          durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-    return QoSProfile(depth=100, reliability=QoSReliabilityPolicy.RELIABLE)
+    """The QoS the graph uses on `topic` (absolute, in any namespace)."""
+    name = graph_name(topic)
+    if name in SENSOR_TOPICS:
+        return qos.SENSOR_DATA
+    if name in LATCHED_TOPICS:
+        return qos.LATCHED
+    return qos.reliable(EVENT_DEPTH)
 
 
 class BagRecorder(Node):
     def __init__(self):
         super().__init__("bag_recorder")
-        self.declare_parameter("output", "", ParameterDescriptor(
-            description="Directory of the new bag (must not exist).", read_only=True))
-        self.declare_parameter("topics", [""], ParameterDescriptor(
-            type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
-            description="Topics to record; empty = the graph's topics (see abp_bringup.bag)."))
-        self.declare_parameter("record_images", False, ParameterDescriptor(
-            description="Also record /camera/image_raw (large).", read_only=True))
-        self.declare_parameter("storage", "mcap", ParameterDescriptor(
-            description="rosbag2 storage: mcap or sqlite3.", read_only=True))
-        output = self.get_parameter("output").value
+        values = declare_all(self, RECORDER_SPECS)
+        output = values["output"]
         if not output:
             raise ValueError("parameter output (the bag directory) is required")
-        known = {**GRAPH_TOPICS, **IMAGE_TOPICS}
-        wanted = [t for t in self.get_parameter("topics").value if t]
-        if wanted:
-            unknown = [t for t in wanted if t not in known]
-            if unknown:
-                raise ValueError(f"topics {unknown} are not graph topics; known: "
-                                 f"{', '.join(sorted(known))}")
-            topics = {t: known[t] for t in wanted}
-        else:
-            topics = dict(GRAPH_TOPICS)
-            if self.get_parameter("record_images").value:
-                topics.update(IMAGE_TOPICS)
-        self.writer = BagWriter(output, topics, self.get_parameter("storage").value)
+        topics = recorded_topics(values["topics"], values["record_images"],
+                                 self.get_namespace())
+        self.writer = BagWriter(output, topics, values["storage"])
         # DDS matches each subscription to its publishers some time after this, so
         # the first message per topic is logged: it says that topic is being recorded.
         self._topics_heard = set()

@@ -1,14 +1,15 @@
 """`recognize`: sends one Recognize goal and prints a readable trace and the result.
 
     recognize [--planner MODE] [--max-actions N] [--threshold P] [--result-json FILE]
-              [--timeout S] [--wait S]
+              [--timeout S] [--wait S] [--ros-args -r __ns:=/robot1]
 
 Trace lines show each chosen action with its expected information gain, the top
 beliefs and the entropy. In sim, the result is compared with the sim bridge's
 ground truth (read here, by the user-facing client, never by a recognition node).
 Exit code 0 when the recognition succeeded (and matched the ground truth when
 there is one), 1 otherwise, 2 for bad arguments, 130 on Ctrl-C (the goal is
-cancelled first).
+cancelled first). Names are relative (abp_common.names): under a namespace the client
+finds that graph's Recognize server.
 """
 
 import argparse
@@ -20,14 +21,13 @@ import time
 import rclpy
 from action_msgs.msg import GoalStatus
 from rclpy.action import ActionClient
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 
+from abp_common import names, qos
 from abp_msgs.action import Recognize
 from abp_msgs.msg import Belief, ExecutedAction, PlanStep, SimGroundTruth
 
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=50, reliability=QoSReliabilityPolicy.RELIABLE)
+TRACE_DEPTH = 50
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",
                 GoalStatus.STATUS_CANCELED: "cancelled"}
 
@@ -42,7 +42,7 @@ def parse_args(argv):
     parser.add_argument("--timeout", type=float, default=1800.0,
                         help="wall-clock seconds before the goal is cancelled")
     parser.add_argument("--wait", type=float, default=120.0,
-                        help="seconds to wait for the graph (the /abp/recognize server)")
+                        help="seconds to wait for the graph (the Recognize server)")
     args = parser.parse_args(argv)
     if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0:
         parser.error("--max-actions must be >= 0 and --threshold in [0, 1)")
@@ -55,16 +55,18 @@ def top_beliefs(belief, count=3):
 
 
 class Tracer:
-    """Prints the trace from /abp/plan, /abp/executed_action and /abp/belief."""
+    """Prints the trace from abp/plan, abp/executed_action and abp/belief."""
 
     def __init__(self, node):
         self.belief = None
         self.ground_truth = None
-        node.create_subscription(PlanStep, "/abp/plan", self.on_plan, RELIABLE)
-        node.create_subscription(ExecutedAction, "/abp/executed_action", self.on_executed,
-                                 RELIABLE)
-        node.create_subscription(Belief, "/abp/belief", self.on_belief, LATCHED)
-        node.create_subscription(SimGroundTruth, "/abp/sim/ground_truth", self.on_truth, LATCHED)
+        events = qos.reliable(TRACE_DEPTH)
+        node.create_subscription(PlanStep, names.PLAN, self.on_plan, events)
+        node.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
+                                 events)
+        node.create_subscription(Belief, names.BELIEF, self.on_belief, qos.LATCHED)
+        node.create_subscription(SimGroundTruth, names.GROUND_TRUTH, self.on_truth,
+                                 qos.LATCHED)
 
     def on_plan(self, msg):
         gain = msg.expected_information_gain
@@ -100,15 +102,17 @@ def spin_until(node, predicate, timeout):
 
 
 def main(argv=None):
-    args = parse_args(sys.argv[1:] if argv is None else argv)
-    rclpy.init()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parse_args(remove_ros_args(["recognize", *argv])[1:])
+    rclpy.init(args=["recognize", *argv])
     node = rclpy.create_node("recognize_client")
     tracer = Tracer(node)
-    client = ActionClient(node, Recognize, "/abp/recognize")
+    client = ActionClient(node, Recognize, names.RECOGNIZE)
+    server = names.absolute(names.RECOGNIZE, node.get_namespace())
     handle = None
     try:
         if not spin_until(node, client.server_is_ready, args.wait):
-            print(f"[recognize] no /abp/recognize server within {args.wait:.0f} s: is the "
+            print(f"[recognize] no {server} server within {args.wait:.0f} s: is the "
                   "planner running?", file=sys.stderr)
             return 1
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,

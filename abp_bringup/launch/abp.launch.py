@@ -2,7 +2,12 @@
 is not installable from PyPI; scripts/start_graph.sh is the tested equivalent and
 starts the same nodes with the same parameters file).
 
-    ros2 launch abp_bringup abp.launch.py sim:=true models:=robot planner:=abp seed:=0
+    ros2 launch abp_bringup abp.launch.py sim:=true models:=robot planner:=abp seed:=0 \
+        namespace:=robot1
+
+The model-set parameters are set once for every node (`SetParameter`, the launch form
+of the `/**:` section in config/abp.yaml); `namespace` puts every node (and so every
+topic, service and action, all relative) under that namespace.
 """
 
 import os
@@ -12,21 +17,19 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
-from launch_ros.actions import Node
+from launch_ros.actions import Node, SetParameter
 
 
 def generate_launch_description():
     config = os.path.join(get_package_share_directory("abp_bringup"), "config", "abp.yaml")
     sim = LaunchConfiguration("sim")
+    namespace = LaunchConfiguration("namespace")
     use_sim_time = PythonExpression(["'", sim, "' == 'true'"])
-    model_params = {
-        "model_set": LaunchConfiguration("models"),
-        "seed": LaunchConfiguration("seed"),
-    }
 
-    def node(package, executable, extra=None):
-        return Node(package=package, executable=executable, output="screen",
-                    parameters=[config, {"use_sim_time": use_sim_time}, extra or {}])
+    def node(package, executable, extra=None, sim_time=True, **kw):
+        params = [config, {"use_sim_time": use_sim_time} if sim_time else {}, extra or {}]
+        return Node(package=package, executable=executable, namespace=namespace,
+                    output="screen", parameters=params, **kw)
 
     return LaunchDescription([
         DeclareLaunchArgument("sim", default_value="true", description="start the sim bridge"),
@@ -35,12 +38,16 @@ def generate_launch_description():
         DeclareLaunchArgument("planner", default_value="abp",
                               description="random, abp, abp2, abp3 or cost"),
         DeclareLaunchArgument("seed", default_value="0", description="model-set seed"),
-        Node(package="abp_sim_bridge", executable="sim_bridge", output="screen",
-             parameters=[config, model_params], condition=IfCondition(sim)),
+        DeclareLaunchArgument("namespace", default_value="",
+                              description="namespace of every node (empty = the root)"),
+        # The model set, once for the whole graph (as `/**:` in a parameters file).
+        SetParameter(name="model_set", value=LaunchConfiguration("models")),
+        SetParameter(name="seed", value=LaunchConfiguration("seed")),
+        # The sim bridge publishes /clock, so it runs on wall time.
+        node("abp_sim_bridge", "sim_bridge", sim_time=False, condition=IfCondition(sim)),
         node("abp_perception", "artag_detector"),
-        node("abp_perception", "aspect_matcher", model_params),
-        node("abp_belief", "belief", model_params),
+        node("abp_perception", "aspect_matcher"),
+        node("abp_belief", "belief"),
         node("abp_skills", "skill_servers"),  # all four action servers, one process
-        node("abp_planner", "planner",
-             {**model_params, "planner_mode": LaunchConfiguration("planner")}),
+        node("abp_planner", "planner", {"planner_mode": LaunchConfiguration("planner")}),
     ])

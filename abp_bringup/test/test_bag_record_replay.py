@@ -19,18 +19,16 @@ rclpy = pytest.importorskip("rclpy")
 ament_index = pytest.importorskip("ament_index_python.packages")
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
 from abp_bringup.bag import BagError, bag_topics, deserialize, read_bag, typestore  # noqa: E402
+from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 WORLD = REPO / "tests" / "helpers" / "model_world_node.py"
 SEED = 5
 TRUE_MODEL = 9
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def executable(package, name):
@@ -92,7 +90,7 @@ def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_c
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     beliefs = []
-    node.create_subscription(Belief, "/abp/belief", beliefs.append, LATCHED)
+    node.create_subscription(Belief, names.BELIEF, beliefs.append, qos.LATCHED)
     assert spin(executor, lambda: beliefs, 30)
     player = subprocess.run(
         [executable("abp_bringup", "bag_player"), str(bag), "--rate", "1", "--topics",
@@ -126,3 +124,21 @@ def test_bad_bags_are_refused_clearly(tmp_path):
     recorder = subprocess.run([executable("abp_bringup", "bag_recorder"), "--ros-args", "-p",
                                f"output:={existing}"], capture_output=True, text=True, timeout=60)
     assert recorder.returncode == 2 and "already exists" in recorder.stderr
+
+
+def test_recorder_under_a_namespace_records_its_absolute_topics(ros_processes, rclpy_context,
+                                                                 spin, tmp_path):
+    bag = tmp_path / "ns"
+    recorder = ros_processes.start([executable("abp_bringup", "bag_recorder"), "--ros-args",
+                                    "-r", "__ns:=/robot1", "-p", f"output:={bag}"])
+    ros_processes.wait_for_line(recorder, "recording 9 topics", 30)
+    node = rclpy.create_node("namespace_checker", context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    assert spin(executor, lambda: node.count_subscribers("/robot1/abp/belief") > 0, 30)
+    assert node.count_subscribers("/abp/belief") == 0
+    os.killpg(recorder.pid, signal.SIGINT)
+    assert recorder.wait(timeout=20) == 0
+    assert bag_topics(bag)["/robot1/abp/belief"] == "abp_msgs/msg/Belief"
+    executor.shutdown()
+    node.destroy_node()

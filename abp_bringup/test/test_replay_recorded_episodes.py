@@ -20,15 +20,13 @@ rclpy = pytest.importorskip("rclpy")
 ament_index = pytest.importorskip("ament_index_python.packages")
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy  # noqa: E402
 
 from abp_bringup.bag import deserialize, read_bag, typestore  # noqa: E402
+from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
 BAGS = pathlib.Path(__file__).resolve().parents[2] / "bags"
 EPISODES = sorted(p for p in BAGS.glob("*") if (p / "metadata.yaml").exists())
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def executable(package, name):
@@ -71,7 +69,7 @@ def test_replay_reproduces_the_recorded_identification(bag, ros_processes, rclpy
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     beliefs = []
-    node.create_subscription(Belief, "/abp/belief", beliefs.append, LATCHED)
+    node.create_subscription(Belief, names.BELIEF, beliefs.append, qos.LATCHED)
     assert spin(executor, lambda: beliefs, 30), "belief node did not start"
     assert beliefs[-1].model_set_id == last_belief.model_set_id, "not the recorded model set"
 

@@ -5,6 +5,7 @@ are (x_m, y_m, yaw_rad) arrays; 4x4 matrices are homogeneous poses.
 """
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def wrap_rad(angle_rad):
@@ -41,16 +42,17 @@ def quaternion_from_yaw(yaw_rad):
 
 def rotation_from_quaternion(x, y, z, w):
     """3x3 rotation of a quaternion (ROS order x, y, z, w), normalised first."""
-    q = np.array([w, x, y, z], dtype=float)
+    q = np.array([x, y, z, w], dtype=float)
     n = np.linalg.norm(q)
     if not np.isfinite(n) or n < 1e-12:
         raise ValueError('quaternion has zero or non-finite norm')
-    w, x, y, z = q / n
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])
+    return Rotation.from_quat(q / n).as_matrix()
+
+
+def quaternion_from_rotation(rotation):
+    """Unit quaternion (x, y, z, w) with w >= 0 of a 3x3 rotation matrix."""
+    return Rotation.from_matrix(np.asarray(rotation, dtype=float).reshape(3, 3)).as_quat(
+        canonical=True)
 
 
 def se2_compose(a, b):
@@ -86,6 +88,6 @@ def base_to_world(base_pose):
     return out
 
 
-__all__ = ['base_to_world', 'integrate_twist', 'quaternion_from_yaw',
+__all__ = ['base_to_world', 'integrate_twist', 'quaternion_from_rotation', 'quaternion_from_yaw',
            'rotation_from_quaternion', 'rot_z', 'rot_z_deg', 'se2_between', 'se2_compose',
            'wrap_rad', 'yaw_of_quaternion', 'yaw_of_rotation']

@@ -7,6 +7,7 @@ from scipy.spatial.transform import Rotation
 from abp_description.frames import (
     base_to_world,
     integrate_twist,
+    quaternion_from_rotation,
     quaternion_from_yaw,
     rot_z,
     rot_z_deg,
@@ -34,6 +35,8 @@ def test_rotations_agree_with_scipy():
     for quat in rng.normal(size=(5, 4)):
         expected = Rotation.from_quat(quat).as_matrix()  # SciPy's order is x, y, z, w too
         assert np.allclose(rotation_from_quaternion(*quat), expected)
+        back = quaternion_from_rotation(expected)
+        assert back[3] >= 0 and np.allclose(rotation_from_quaternion(*back), expected)
     with pytest.raises(ValueError, match='zero or non-finite'):
         rotation_from_quaternion(0.0, 0.0, 0.0, 0.0)
 

@@ -1,14 +1,16 @@
 """ROS 2 wiring of the tag detector: the `artag_detector` node.
 
-Subscribes:  /camera/image_raw   (sensor_msgs/Image, sensor-data QoS)
-             /camera/camera_info (sensor_msgs/CameraInfo, sensor-data QoS)
-             /joint_states       (sensor_msgs/JointState; camera pose by forward kinematics)
-Publishes:   /abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the image's
+Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS)
+             camera/camera_info (sensor_msgs/CameraInfo, sensor-data QoS)
+             joint_states       (sensor_msgs/JointState; camera pose by forward kinematics)
+Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the image's
              header stamp; poses in `base_frame` once a joint state has arrived, else in
              the camera frame)
 
+Topic names are relative (abp_common.names): under a namespace the node reads and
+writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
 The science lives in `abp_perception.detector`; the camera pose in the base frame comes
-from `abp_description.kinematics.RobotKinematics` (Pinocchio over /joint_states, no tf2).
+from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, no tf2).
 Images without camera_info are skipped (throttled warning); images in an unsupported
 encoding are skipped with a clear (throttled) error.
 """
@@ -17,97 +19,55 @@ import sys
 
 import numpy as np
 from geometry_msgs.msg import Point32
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState
 
-from abp_belief.node_main import run_node
+from abp_common import names, qos
+from abp_common.node_runner import run_node
+from abp_common.parameters import declare_all
+from abp_description.frames import quaternion_from_rotation
+from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
-from .detector import DICTIONARY_NAMES, ImageEncodingError, TagDetector, image_msg_to_gray
-from .geometry import rotation_to_quaternion
+from .detector import ImageEncodingError, TagDetector, image_msg_to_gray
+from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 THROTTLE_S = 5.0
 DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
-# Parameters the running detector is rebuilt from when they change.
-DETECTOR_PARAMETERS = ("marker_size", "corner_sigma_px", "max_reprojection_error",
-                       "min_side_px", "refine_corners", "second_pass")
-
-
-def _range(low, high):
-    return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
 
 
 class ArtagDetectorNode(Node):
     def __init__(self):
         super().__init__("artag_detector")
-        self._declare_parameters()
-        dictionary = self._param("dictionary")
-        if dictionary not in DICTIONARY_NAMES:
-            raise ValueError(f"parameter dictionary must be one of {', '.join(DICTIONARY_NAMES)}"
-                             f", got {dictionary!r}")
-        from abp_description.kinematics import RobotKinematics
-        urdf = self._param("urdf_file") or None
-        self.kinematics = RobotKinematics(urdf)
-        self.base_frame = self._param("base_frame")
-        self.camera_frame = self._param("camera_frame")
+        self._values = declare_all(self, DETECTOR_SPECS)
+        self.kinematics = RobotKinematics(self._values["urdf_file"] or None)
+        self.base_frame = self._values["base_frame"]
+        self.camera_frame = self._values["camera_frame"]
         if not self.kinematics.has_frame(self.camera_frame):
             raise ValueError(f"parameter camera_frame: no frame {self.camera_frame!r} in "
                              f"{self.kinematics.urdf_path}")
-        self._config = {name: self._param(name) for name in DETECTOR_PARAMETERS}
+        self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
         self._camera_key = None
         self._camera_size = None
         self._joints = None
         self._warned_frames = set()
-        self._pub = self.create_publisher(TagDetectionArray, "/abp/tag_detections", RELIABLE)
-        self.create_subscription(Image, "/camera/image_raw", self._on_image,
-                                 qos_profile_sensor_data)
-        self.create_subscription(CameraInfo, "/camera/camera_info", self._on_camera_info,
-                                 qos_profile_sensor_data)
-        self.create_subscription(JointState, "/joint_states", self._on_joint_state,
-                                 qos_profile_sensor_data)
+        self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
+                                          qos.RELIABLE)
+        self.create_subscription(Image, names.IMAGE, self._on_image, qos.SENSOR_DATA)
+        self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
+                                 qos.SENSOR_DATA)
+        self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state,
+                                 qos.SENSOR_DATA)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"detecting {dictionary} tags of {self._config['marker_size']} m; poses in "
-            f"{self.base_frame} via {self.camera_frame} forward kinematics")
+            f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m; "
+            f"poses in {self.base_frame} via {self.camera_frame} forward kinematics")
 
     # -- parameters ---------------------------------------------------------------
-    def _declare_parameters(self):
-        def declare(name, default, description, **extra):
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, **extra))
-
-        declare("dictionary", "DICT_4X4_50", "ArUco dictionary (OpenCV name).", read_only=True)
-        declare("marker_size", 0.08, "Edge of a tag's black square, m.",
-                floating_point_range=_range(0.005, 2.0))
-        declare("base_frame", "base_link", "Frame of the published poses (robot base).",
-                read_only=True)
-        declare("camera_frame", "camera_optical_frame",
-                "URDF frame of the camera, used when the image's frame_id is not in the URDF.",
-                read_only=True)
-        declare("urdf_file", "", "URDF for the kinematics; empty = abp_description's.",
-                read_only=True)
-        declare("corner_sigma_px", 0.08, "Base corner noise of the covariance model, px.",
-                floating_point_range=_range(0.001, 10.0))
-        declare("max_reprojection_error", 2.0, "Drop poses with a larger RMS error, px.",
-                floating_point_range=_range(0.01, 100.0))
-        declare("min_side_px", 6.0, "Drop tags smaller than this in the image, px.",
-                floating_point_range=_range(1.0, 1000.0))
-        declare("refine_corners", True, "Edge-fit sub-pixel corners (else OpenCV SUBPIX).")
-        declare("second_pass", True, "Decode candidates that ArUco rejected, after refining.")
-
-    def _param(self, name):
-        return self.get_parameter(name).value
-
     def _build_detector(self, config, camera_matrix, dist_coeffs):
-        return TagDetector(camera_matrix, dist_coeffs, dictionary=self._param("dictionary"),
+        return TagDetector(camera_matrix, dist_coeffs, dictionary=self._values["dictionary"],
                            camera_frame=self.camera_frame, **config)
 
     def _on_set_parameters(self, params):
@@ -162,8 +122,9 @@ class ArtagDetectorNode(Node):
 
     def _on_image(self, msg: Image):
         if self.detector is None:
-            self.get_logger().warning("no valid camera_info on /camera/camera_info yet: "
-                                      "image skipped", throttle_duration_sec=THROTTLE_S)
+            self.get_logger().warning(
+                f"no valid camera_info on {self.resolve_topic_name(names.CAMERA_INFO)} yet: "
+                "image skipped", throttle_duration_sec=THROTTLE_S)
             return
         w, h = self._camera_size
         if w and h and (msg.width != w or msg.height != h):
@@ -185,8 +146,9 @@ class ArtagDetectorNode(Node):
                                      self.base_frame)
             out_frame = self.base_frame
         else:
-            self.get_logger().warning("no /joint_states yet: detections published in the "
-                                      "camera frame", throttle_duration_sec=THROTTLE_S)
+            self.get_logger().warning(
+                f"no {self.resolve_topic_name(names.JOINT_STATES)} yet: detections published "
+                "in the camera frame", throttle_duration_sec=THROTTLE_S)
             out_frame = msg.header.frame_id or frame
         self._pub.publish(self._to_msg(result, msg.header, out_frame))
 
@@ -210,7 +172,7 @@ class ArtagDetectorNode(Node):
             msg.id = int(det.tag_id)
             p = msg.pose.pose
             p.position.x, p.position.y, p.position.z = (float(v) for v in det.pose[:3, 3])
-            qx, qy, qz, qw = rotation_to_quaternion(det.pose[:3, :3])
+            qx, qy, qz, qw = quaternion_from_rotation(det.pose[:3, :3])
             p.orientation.x, p.orientation.y = float(qx), float(qy)
             p.orientation.z, p.orientation.w = float(qz), float(qw)
             msg.pose.covariance = [float(v) for v in det.covariance.ravel()]

@@ -1,112 +1,64 @@
 """ROS 2 wiring of the aspect matcher (paper Alg. 2): the `aspect_matcher` node.
 
-Subscribes:  /abp/tag_detections    (abp_msgs/TagDetectionArray, poses in base_frame)
-Publishes:   /abp/aspect_observation (abp_msgs/AspectObservation: features and ranked
+Subscribes:  abp/tag_detections    (abp_msgs/TagDetectionArray, poses in base_frame)
+Publishes:   abp/aspect_observation (abp_msgs/AspectObservation: features and ranked
              aspect hypotheses, stamped like the detections)
 
-The model set is chosen by the same parameters as the belief node (model_file,
-model_set, model_set_size, n_tags, seed), so both agree on the aspects. The science
-lives in `abp_perception.matcher`. Detections that are not in `base_frame` (the
-detector had no joint states yet) are skipped with a throttled warning: the view frame
-needs the robot base's position.
+Topic names are relative (abp_common.names). The model set is chosen by the same
+parameters as the belief node (abp_belief.model_set_config.MODEL_SET_SPECS), so both
+agree on the aspects; the matcher's own are `node_parameters.MATCHER_SPECS`. The science
+lives in `abp_perception.matcher`. Detections that are not in `base_frame` (the detector
+had no joint states yet) are skipped with a throttled warning: the view frame needs the
+robot base's position.
 """
 
 import sys
 
 import numpy as np
 from geometry_msgs.msg import Point, Vector3
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 
-from abp_belief.io import ModelFileError
-from abp_belief.model_set_params import (
+from abp_belief.model_file import ModelFileError
+from abp_belief.model_set_config import (
     MODEL_SET_PARAMETERS,
-    declare_model_set_parameters,
-    load_model_set,
+    MODEL_SET_SPECS,
+    model_set_from_values,
 )
-from abp_belief.node_main import run_node
+from abp_common import names, qos
+from abp_common.node_runner import run_node
+from abp_common.parameters import declare_all
+from abp_description.frames import quaternion_from_rotation, rotation_from_quaternion
 from abp_msgs.msg import AspectHypothesis, AspectObservation, Feature, TagDetectionArray
 
-from .geometry import quaternion_to_rotation, rotation_to_quaternion
 from .matcher import AspectMatcher, normal_sigma_of
 from .matcher import Feature as MatchFeature
+from .node_parameters import MATCHER_PARAMETERS, MATCHER_SPECS, matcher_options
 
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
 THROTTLE_S = 5.0
-MATCHER_PARAMETERS = ("voxel_size", "peak_radius", "orientation_sigma_deg", "min_pair_score",
-                      "min_support", "max_hypotheses", "distance_samples")
-
-
-def _range(low, high):
-    return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
-
-
-def _int_range(low, high):
-    return [IntegerRange(from_value=low, to_value=high, step=1)]
 
 
 class AspectMatcherNode(Node):
     def __init__(self):
         super().__init__("aspect_matcher")
-        self._declare_parameters()
+        values = declare_all(self, MODEL_SET_SPECS + MATCHER_SPECS)
         # The same parameters as the belief node, so both see the same aspects.
-        self.model_set = load_model_set(self)
-        self.base_frame = self._param("base_frame")
-        self._config = {name: self._param(name) for name in MATCHER_PARAMETERS}
+        self.model_set = model_set_from_values(values)
+        self.base_frame = values["base_frame"]
+        self._config = {name: values[name] for name in MATCHER_PARAMETERS}
         self.matcher = self._build_matcher(self._config)
-        self._pub = self.create_publisher(AspectObservation, "/abp/aspect_observation",
-                                          RELIABLE)
-        self.create_subscription(TagDetectionArray, "/abp/tag_detections", self._on_detections,
-                                 RELIABLE)
+        self._pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
+                                          qos.RELIABLE)
+        self.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, self._on_detections,
+                                 qos.RELIABLE)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"matching against {len(self.model_set.aspects)} aspects of "
             f"{self.model_set.num_models} models (n_tags={self.model_set.n_tags})")
 
     # -- parameters ---------------------------------------------------------------
-    def _declare_parameters(self):
-        def declare(name, default, description, **extra):
-            self.declare_parameter(name, default, ParameterDescriptor(
-                description=description, **extra))
-
-        declare_model_set_parameters(self)
-        declare("base_frame", "base_link", "Frame the detections must be in (robot base; "
-                "its origin defines the view frame).", read_only=True)
-        declare("voxel_size", 0.0, "Hough accumulator voxel, m; 0 = cube_size / 4.",
-                floating_point_range=_range(0.0, 1.0))
-        declare("peak_radius", 0.0, "Votes within this distance of a peak support it, m; "
-                "0 = cube_size / 2.", floating_point_range=_range(0.0, 1.0))
-        declare("orientation_sigma_deg", 15.0, "Tolerance of a vote's rotation against the "
-                "view frame, deg.", floating_point_range=_range(1.0, 180.0))
-        declare("min_pair_score", 0.05, "Minimum Gaussian-correlation score of a vote.",
-                floating_point_range=_range(0.0, 1.0))
-        declare("min_support", 0.05, "Minimum support of a reported hypothesis.",
-                floating_point_range=_range(0.0, 100.0))
-        declare("max_hypotheses", 10, "Hypotheses per observation, best first.",
-                integer_range=_int_range(1, 1000))
-        declare("distance_samples", 0, "Sample the inter-feature distance Gaussians with "
-                "this many samples (paper); 0 = propagate the covariances.",
-                integer_range=_int_range(0, 10000))
-
-    def _param(self, name):
-        return self.get_parameter(name).value
-
     def _build_matcher(self, config):
-        return AspectMatcher(
-            self.model_set,
-            voxel_size=config["voxel_size"] or None,
-            peak_radius=config["peak_radius"] or None,
-            orientation_sigma_deg=config["orientation_sigma_deg"],
-            min_pair_score=config["min_pair_score"],
-            min_support=config["min_support"],
-            max_hypotheses=config["max_hypotheses"],
-            distance_samples=config["distance_samples"])
+        return AspectMatcher(self.model_set, **matcher_options(config))
 
     def _on_set_parameters(self, params):
         changes = {}
@@ -131,10 +83,17 @@ class AspectMatcherNode(Node):
         if msg.header.frame_id != self.base_frame:
             self.get_logger().warning(
                 f"tag detections in frame {msg.header.frame_id!r}, need {self.base_frame!r} "
-                "(does the detector get /joint_states?): skipped",
+                f"(does the detector get {self.resolve_topic_name(names.JOINT_STATES)}?): "
+                "skipped",
                 throttle_duration_sec=THROTTLE_S)
             return
-        features = [self._feature(det) for det in msg.detections]
+        features = []
+        for det in msg.detections:
+            try:
+                features.append(self._feature(det))
+            except ValueError as error:       # a zero or non-finite orientation quaternion
+                self.get_logger().warning(f"tag {det.id} skipped: {error}",
+                                          throttle_duration_sec=THROTTLE_S)
         result = self.matcher.match(features)
         if result.ignored_ids:
             self.get_logger().debug(f"ignored tag ids outside the model set: "
@@ -144,8 +103,8 @@ class AspectMatcherNode(Node):
     @staticmethod
     def _feature(det):
         p = det.pose.pose
-        rot = quaternion_to_rotation(p.orientation.x, p.orientation.y, p.orientation.z,
-                                     p.orientation.w)
+        rot = rotation_from_quaternion(p.orientation.x, p.orientation.y, p.orientation.z,
+                                       p.orientation.w)
         cov6 = np.asarray(det.pose.covariance, dtype=np.float64).reshape(6, 6)
         return MatchFeature(int(det.id), np.array([p.position.x, p.position.y, p.position.z]),
                             cov6[:3, :3].copy(), rot[:, 2].copy(), float(det.confidence),
@@ -172,7 +131,7 @@ class AspectMatcherNode(Node):
             pose = msg.object_pose.pose
             pose.position = Point(x=float(h.position[0]), y=float(h.position[1]),
                                   z=float(h.position[2]))
-            qx, qy, qz, qw = rotation_to_quaternion(h.rotation)
+            qx, qy, qz, qw = quaternion_from_rotation(h.rotation)
             pose.orientation.x, pose.orientation.y = float(qx), float(qy)
             pose.orientation.z, pose.orientation.w = float(qz), float(qw)
             msg.object_pose.covariance = [float(v) for v in h.covariance.ravel()]

@@ -14,12 +14,7 @@ def full_matcher(full_models):
 
 
 @pytest.fixture(scope="session")
-def scenes():
-    from abp_perception.scenes import SceneGenerator
-    return SceneGenerator(seed=7)
-
-
-@pytest.fixture(scope="session")
-def detector(scenes):
+def detector():
+    from abp_description import camera_intrinsics
     from abp_perception.detector import TagDetector
-    return TagDetector(scenes.K)
+    return TagDetector(camera_intrinsics().K)

@@ -1,9 +1,10 @@
-"""The perception nodes over real DDS: a rendered camera image, its camera_info and the
-joint states go in; tag detections in base_link and the right aspect observation come
-out. Bad input is skipped with a clear log line; bad parameters are refused."""
+"""The perception nodes over real DDS: bad input is skipped with a clear log line; bad
+parameters are refused. A rendered image in, the right aspect observation out:
+abp_bench/test/test_perception_nodes_on_scenes.py."""
 
 import os
 import subprocess
+import time
 
 import numpy as np
 import pytest
@@ -16,36 +17,16 @@ if not hasattr(pytest.importorskip("abp_msgs.msg"), "AspectObservation"):
 
 from builtin_interfaces.msg import Time  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy, qos_profile_sensor_data  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
-from abp_belief import cube  # noqa: E402
-from abp_belief.population import robot_set  # noqa: E402
+from abp_common import names, qos  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
-from abp_description.kinematics import RobotKinematics  # noqa: E402
-from abp_msgs.msg import AspectObservation, TagDetectionArray  # noqa: E402
-from abp_perception.scenes import SceneGenerator, look_at_joints  # noqa: E402
-
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE)
-SEED = 3
-CUBE_CENTRE = np.array([1.0, 0.0, 0.05])
-NEAR_CUBE_CENTRE = np.array([0.40, 0.0, 0.05])
-HEAD_TILT = 0.6
+from abp_msgs.msg import TagDetectionArray  # noqa: E402
 
 
 def executable(name):
     prefix = ament_index.get_package_prefix("abp_perception")
     return os.path.join(prefix, "lib", "abp_perception", name)
-
-
-@pytest.fixture(scope="module")
-def world():
-    kin = RobotKinematics()
-    q = kin.neutral()
-    q[kin.joint_index("head_tilt_joint")] = HEAD_TILT
-    cam = camera_intrinsics()
-    gen = SceneGenerator(cam.K, cam.width, cam.height, seed=5)
-    return kin, q, cam, gen, robot_set(seed=SEED)
 
 
 def camera_info_msg(cam):
@@ -76,85 +57,23 @@ def tester(rclpy_context):
     node.destroy_node()
 
 
-def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester, spin,
-                                                            world):
-    kin, q, cam, gen, models = world
-    ros_processes.start([executable("artag_detector")])
-    ros_processes.start([executable("aspect_matcher"), "--ros-args", "-p", "model_set:=robot",
-                         "-p", f"seed:={SEED}"])
-    node, executor = tester
-    observations, detections = [], []
-    node.create_subscription(AspectObservation, "/abp/aspect_observation",
-                             observations.append, RELIABLE)
-    node.create_subscription(TagDetectionArray, "/abp/tag_detections", detections.append,
-                             RELIABLE)
-    image_pub = node.create_publisher(Image, "/camera/image_raw", qos_profile_sensor_data)
-    info_pub = node.create_publisher(CameraInfo, "/camera/camera_info", qos_profile_sensor_data)
-    joint_pub = node.create_publisher(JointState, "/joint_states", RELIABLE)
-    assert spin(executor, lambda: image_pub.get_subscription_count() > 0
-                and joint_pub.get_subscription_count() > 0
-                and info_pub.get_subscription_count() > 0, 30), "detector did not come up"
-    # Two cases with the head tilted 0.6 rad to a cube 1 m away, one at the sim bridge's
-    # default cube pose (0.40 m in front, head tilted ~1.1 rad).
-    near_q = look_at_joints(kin, NEAR_CUBE_CENTRE)
-    cases = [(4, 32, CUBE_CENTRE, q), (4, 33, CUBE_CENTRE, q), (21, 13, NEAR_CUBE_CENTRE, near_q)]
-    for k, (model, state, centre, joint_q) in enumerate(cases):
-        faces = models.faces[model]
-        scene = gen.render_view(kin.camera_pose(joint_q), faces, state, centre,
-                                yaw_error_deg=3.0)
-        stamp = Time(sec=100 + k, nanosec=12345)
-        joints = JointState(name=list(kin.joint_names), position=[float(v) for v in joint_q])
-        for _ in range(5):                       # the detector has these joints before images
-            joint_pub.publish(joints)
-            spin(executor, lambda: False, 0.1)
-        observations.clear()
-        detections.clear()
-
-        def publish_until_observed():
-            info_pub.publish(camera_info_msg(cam))
-            joint_pub.publish(joints)
-            image_pub.publish(image_msg(scene.image, cam.frame_id, stamp))
-            return spin(executor, lambda: any(o.header.stamp == stamp for o in observations),
-                        0.5)
-
-        assert any(publish_until_observed() for _ in range(40)), \
-            f"no aspect observation for model {model} state {state}"
-        obs = [o for o in observations if o.header.stamp == stamp][0]
-        det = [d for d in detections if d.header.stamp == stamp][0]
-        expected = cube.aspect_of(faces, state)
-        assert det.header.frame_id == "base_link"
-        assert det.camera_frame_id == cam.frame_id
-        assert sorted(d.id for d in det.detections) == sorted(expected[1:1 + expected[0]])
-        for d in det.detections:
-            truth = [t for t in scene.tags if t.tag_id == d.id][0]
-            p = d.pose.pose.position
-            assert np.linalg.norm([p.x - truth.centre[0], p.y - truth.centre[1],
-                                   p.z - truth.centre[2]]) < 0.01
-            assert np.all(np.linalg.eigvalsh(np.reshape(d.pose.covariance, (6, 6))) > 0)
-        assert obs.header.frame_id == "base_link"
-        assert len(obs.features) == len(det.detections)
-        best = obs.hypotheses[0]
-        assert (best.aspect_type, *best.slots) == expected
-        pos = best.object_pose.pose.position
-        assert np.linalg.norm([pos.x, pos.y, pos.z] - centre) < 0.02
-        assert sorted(best.feature_indices) == list(range(expected[0]))
-
-
-def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin, world):
-    kin, q, cam, gen, models = world
+def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
+    cam = camera_intrinsics()
     proc = ros_processes.start([executable("artag_detector")])
     node, executor = tester
-    image_pub = node.create_publisher(Image, "/camera/image_raw", qos_profile_sensor_data)
-    info_pub = node.create_publisher(CameraInfo, "/camera/camera_info", qos_profile_sensor_data)
+    image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
+    info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
     detections = []
-    node.create_subscription(TagDetectionArray, "/abp/tag_detections", detections.append,
-                             RELIABLE)
+    node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
+                             qos.RELIABLE)
     assert spin(executor, lambda: image_pub.get_subscription_count() > 0, 30)
     gray = np.full((cam.height, cam.width), 128, np.uint8)
 
-    def publish_until_logged(publish, text, attempts=30):
-        # Large best-effort samples right after discovery may be lost: keep publishing.
-        for _ in range(attempts):
+    def publish_until_logged(publish, text, timeout=60.0):
+        # Large best-effort samples can be lost (right after discovery, or on a loaded
+        # machine): keep publishing until the log line comes, up to a deadline.
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
             publish()
             spin(executor, lambda: False, 0.1)
             try:
@@ -179,7 +98,8 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin, 
     assert publish_until_logged(bad_encoding, "unsupported image encoding 'yuv422'")
     assert detections == []
     # A good image without joint states: published in the camera frame, still running.
-    for _ in range(20):
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
         info_pub.publish(camera_info_msg(cam))
         image_pub.publish(image_msg(gray, cam.frame_id, Time(sec=3)))
         if spin(executor, lambda: detections, 0.3):
@@ -201,3 +121,14 @@ def test_bad_parameters_are_refused_clearly(name, override, expected):
     assert result.returncode == 2, result.stderr
     assert "configuration error" in result.stderr and expected in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def test_nodes_under_a_namespace_use_its_topics(ros_processes, tester, spin):
+    ros_processes.start([executable("artag_detector"), "--ros-args", "-r", "__ns:=/robot1"])
+    ros_processes.start([executable("aspect_matcher"), "--ros-args", "-r", "__ns:=/robot1"])
+    node, executor = tester
+    assert spin(executor, lambda: node.count_publishers("/robot1/abp/aspect_observation") > 0
+                and node.count_publishers("/robot1/abp/tag_detections") > 0
+                and node.count_subscribers("/robot1/camera/image_raw") > 0, 30)
+    assert node.count_publishers("/abp/tag_detections") == 0
+    assert node.count_subscribers("/camera/image_raw") == 0

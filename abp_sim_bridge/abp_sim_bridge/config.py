@@ -1,132 +1,133 @@
 """The sim_bridge node's parameters, their checks, and what they build (plain Python, no
-rclpy): one table (`PARAMETERS`) the node declares from, and `build(values)` which turns a
-{name: value} mapping into the simulation's pieces or raises ValueError naming the
-parameter that is wrong.
+rclpy): one `ParamSpec` table (`PARAMETERS`) the node declares with
+`abp_common.parameters.declare_all`, `build(values)` which turns a {name: value} mapping
+into the simulation's pieces or raises ValueError naming the parameter that is wrong, and
+`refusal(values, changes)`, the rule for changes at run time.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .contact import ContactParams
-from .renderer import ImageEffects
-from .scenario import (
-    MODEL_SETS,
-    HiddenModel,
-    choose_hidden_model,
-    initial_cube,
-    make_distractors,
+from abp_belief.model_set_config import POPULATION_SPECS
+from abp_common.param_spec import (
+    BOOL,
+    DOUBLE,
+    DOUBLE_ARRAY,
+    INT,
+    INT_ARRAY,
+    STRING,
+    ParamSpec,
+    check_all,
+    probability,
 )
-from .sim_world import SimSettings
-from .world import Cube, Failures
+from abp_common.param_spec import defaults as spec_defaults
 
-BOOL, INT, DOUBLE, STRING, INT_ARRAY, DOUBLE_ARRAY = (
-    'bool', 'int', 'double', 'string', 'int[]', 'double[]')
+from .flat_renderer import ImageEffects
+from .rules_contact import ContactParams
+from .rules_physics import Cube, Failures
+from .rules_world import SimSettings
+from .scenario import HiddenModel, choose_hidden_model, initial_cube, make_distractors
 
-
-@dataclass(frozen=True)
-class Param:
-    name: str
-    kind: str
-    default: object          # None: an array parameter that starts unset (= empty)
-    description: str
-    range: tuple | None = None  # (low, high) inclusive, for int / double
-
-    def check(self, value):
-        if self.range is not None and value is not None:
-            low, high = self.range
-            if not low <= value <= high:
-                raise ValueError(f'{self.name} must be in [{low}, {high}], got {value}')
-
+SEED_RANGE = (0, 2**31 - 1)
+# The model set the hidden cube is drawn from: the belief node's own parameters (so one
+# `/**:` block of abp.yaml sets both). Here they are not read-only: like every world
+# parameter, a new model set takes effect at the next ~/reset_world.
+MODEL_SET_SPECS = tuple(replace(p, read_only=False) for p in POPULATION_SPECS)
 
 PARAMETERS = (
     # -- time ---------------------------------------------------------------------------
-    Param('rate', DOUBLE, 50.0, 'Simulation tick rate, Hz of simulation time: base and joint '
-          'integration, contacts, /joint_states, /odom and /clock.', (1.0, 1000.0)),
-    Param('speedup', DOUBLE, 1.0, 'Simulation time per wall-clock time: 1 = real time, 10 = '
-          'ten times faster (0 < speedup <= 100). Takes effect at once. If the machine cannot '
-          'keep up, simulation time runs slower (never inconsistently).', (0.0, 100.0)),
-    Param('publish_clock', BOOL, True, 'Publish /clock (other nodes then run with '
-          'use_sim_time:=true) and stamp everything with simulation time starting at 0. '
-          'false: stamps are wall-clock time at start + simulation time (no /clock).'),
-    Param('camera_rate', DOUBLE, 10.0, 'Camera frame rate, Hz of simulation time '
-          '(0 = no camera); at most `rate`.', (0.0, 1000.0)),
-    Param('ground_truth_rate', DOUBLE, 5.0, 'Rate of /abp/sim/ground_truth, Hz of simulation '
-          'time (it is also published at once after every contact event and reset; 0 = only '
-          'then).', (0.0, 1000.0)),
-    Param('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for this '
-          'long (s of simulation time).', (0.001, 60.0)),
+    ParamSpec('rate', DOUBLE, 50.0, 'Simulation tick rate, Hz of simulation time: base and '
+              'joint integration, contacts, /joint_states, /odom and /clock.', (1.0, 1000.0)),
+    ParamSpec('speedup', DOUBLE, 1.0, 'Simulation time per wall-clock time: 1 = real time, '
+              '10 = ten times faster (0 < speedup <= 100). Takes effect at once. If the '
+              'machine cannot keep up, simulation time runs slower (never inconsistently).',
+              (0.0, 100.0)),
+    ParamSpec('publish_clock', BOOL, True, 'Publish /clock (other nodes then run with '
+              'use_sim_time:=true) and stamp everything with simulation time starting at 0. '
+              'false: stamps are wall-clock time at start + simulation time (no /clock).',
+              read_only=True),
+    ParamSpec('camera_rate', DOUBLE, 10.0, 'Camera frame rate, Hz of simulation time '
+              '(0 = no camera); at most `rate`.', (0.0, 1000.0)),
+    ParamSpec('ground_truth_rate', DOUBLE, 5.0, 'Rate of /abp/sim/ground_truth, Hz of '
+              'simulation time (it is also published at once after every contact event and '
+              'reset; 0 = only then).', (0.0, 1000.0)),
+    ParamSpec('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for '
+              'this long (s of simulation time).', (0.001, 60.0)),
     # -- the hidden cube ------------------------------------------------------------------
-    Param('face_tags', INT_ARRAY, None, 'Explicit hidden cube: tag id on each body face '
-          '(+x -x +y -y +z -z), 6 distinct ids 0..49; empty = take it from the model set.'),
-    Param('mass_index', INT, 0, 'With face_tags: 0 = uniform mass, 1 + f = heavy towards '
-          'body face f.', (0, 6)),
-    Param('model_set', STRING, 'robot', 'Model set the hidden cube is drawn from when '
-          'face_tags is empty (as the belief node builds it): ' + ', '.join(MODEL_SETS) + '.'),
-    Param('model_set_size', INT, 30, 'Visual cubes of model_set=random.', (1, 100000)),
-    Param('n_tags', INT, 7, 'Tags of the population (ArUco ids 0..n_tags-1).', (6, 50)),
-    Param('seed', INT, 0, 'Seed of the robot and random model sets (as the belief node).',
-          (0, 2**31 - 1)),
-    Param('model_file', STRING, '', 'Model-set file (abp_belief `models --out`); overrides '
-          'model_set.'),
-    Param('model_index', INT, -1, 'Index of the hidden model in the model set; -1 = drawn '
-          'with cube_seed.', (-1, 10**7)),
-    Param('cube_seed', INT, 0, 'Seed of the random choice of the hidden model.',
-          (0, 2**31 - 1)),
-    Param('cube_size', DOUBLE, 0.10, 'Cube edge, m.', (0.02, 0.5)),
-    Param('tag_size', DOUBLE, 0.08, 'Tag (black square) edge, m; smaller than cube_size.',
-          (0.005, 0.5)),
-    Param('mass_offset', DOUBLE, 0.025, 'Centre of mass offset towards the heavy face, m '
-          '(less than half the edge).', (0.0, 0.25)),
-    Param('cube_x', DOUBLE, 0.40, 'Initial cube centre x in odom, m (the robot starts at the '
-          'origin facing +x).', (-100.0, 100.0)),
-    Param('cube_y', DOUBLE, 0.0, 'Initial cube centre y in odom, m.', (-100.0, 100.0)),
-    Param('cube_yaw', DOUBLE, 0.0, 'Initial cube yaw about the vertical, rad (applied after '
-          'cube_up_face).', (-10.0, 10.0)),
-    Param('cube_up_face', INT, 4, 'Initial body face up (0:+x 1:-x 2:+y 3:-y 4:+z 5:-z), with '
-          "MODEL.md's reference rotation R_UP.", (0, 5)),
+    ParamSpec('face_tags', INT_ARRAY, None, 'Explicit hidden cube: tag id on each body face '
+              '(+x -x +y -y +z -z), 6 distinct ids 0..49; empty = take it from the model set.'),
+    ParamSpec('mass_index', INT, 0, 'With face_tags: 0 = uniform mass, 1 + f = heavy towards '
+              'body face f.', (0, 6)),
+    *MODEL_SET_SPECS,
+    ParamSpec('model_index', INT, -1, 'Index of the hidden model in the model set; -1 = drawn '
+              'with cube_seed.', (-1, 10**7)),
+    ParamSpec('cube_seed', INT, 0, 'Seed of the random choice of the hidden model.',
+              SEED_RANGE),
+    ParamSpec('cube_size', DOUBLE, 0.10, 'Cube edge, m.', (0.02, 0.5)),
+    ParamSpec('tag_size', DOUBLE, 0.08, 'Tag (black square) edge, m; smaller than cube_size.',
+              (0.005, 0.5)),
+    ParamSpec('mass_offset', DOUBLE, 0.025, 'Centre of mass offset towards the heavy face, m '
+              '(less than half the edge).', (0.0, 0.25)),
+    ParamSpec('cube_x', DOUBLE, 0.40, 'Initial cube centre x in odom, m (the robot starts at '
+              'the origin facing +x).', (-100.0, 100.0)),
+    ParamSpec('cube_y', DOUBLE, 0.0, 'Initial cube centre y in odom, m.', (-100.0, 100.0)),
+    ParamSpec('cube_yaw', DOUBLE, 0.0, 'Initial cube yaw about the vertical, rad (applied '
+              'after cube_up_face).', (-10.0, 10.0)),
+    ParamSpec('cube_up_face', INT, 4, 'Initial body face up (0:+x 1:-x 2:+y 3:-y 4:+z 5:-z), '
+              "with MODEL.md's reference rotation R_UP.", (0, 5)),
     # -- camera ---------------------------------------------------------------------------
-    Param('camera_encoding', STRING, 'mono8', 'Image encoding: mono8 or bgr8.'),
-    Param('camera_noise_std', DOUBLE, 1.0, 'Gaussian image noise, grey levels.', (0.0, 100.0)),
-    Param('camera_blur_sigma', DOUBLE, 0.5, 'Gaussian blur sigma, pixels.', (0.0, 20.0)),
-    Param('camera_gain', DOUBLE, 1.0, 'Exposure gain (multiplies intensities).', (0.05, 20.0)),
-    Param('p_missed_tag', DOUBLE, 0.0, 'Probability that a tag is not drawn in a frame '
-          '(glare, occlusion): fault injection for the detector and matcher.', (0.0, 1.0)),
-    Param('camera_supersample', INT, 4, 'Renderer supersampling of face outlines '
-          '(1 = fastest).', (1, 8)),
-    Param('camera_noise_bank', INT, 8, 'Image noise from this many pre-drawn noise frames '
-          '(a random window of one each frame; much faster); 0 = fresh Gaussian noise every '
-          'frame.', (0, 64)),
-    Param('distractors', INT, 0, 'Flat tags on the floor around the cube that are not on '
-          'it (ids n_tags..49 not on the cube).', (0, 20)),
-    Param('distractor_seed', INT, 0, 'Seed of the distractors.', (0, 2**31 - 1)),
-    Param('look_at_cube', BOOL, True, 'Start with the head pan/tilt pointing the camera at '
-          'the cube (ignored when initial_positions is given).'),
-    Param('initial_positions', DOUBLE_ARRAY, None, 'Initial joint positions, 13 values in '
-          'URDF joint order (as /joint_states); empty = all zero (arms hanging).'),
+    ParamSpec('camera_encoding', STRING, 'mono8', 'Image encoding.',
+              choices=('mono8', 'bgr8')),
+    ParamSpec('camera_noise_std', DOUBLE, 1.0, 'Gaussian image noise, grey levels.',
+              (0.0, 100.0)),
+    ParamSpec('camera_blur_sigma', DOUBLE, 0.5, 'Gaussian blur sigma, pixels.', (0.0, 20.0)),
+    ParamSpec('camera_gain', DOUBLE, 1.0, 'Exposure gain (multiplies intensities).',
+              (0.05, 20.0)),
+    probability('p_missed_tag', 0.0, 'Probability that a tag is not drawn in a frame '
+                '(glare, occlusion): fault injection for the detector and matcher.'),
+    ParamSpec('camera_supersample', INT, 4, 'Renderer supersampling of face outlines '
+              '(1 = fastest).', (1, 8)),
+    ParamSpec('camera_noise_bank', INT, 8, 'Image noise from this many pre-drawn noise frames '
+              '(a random window of one each frame; much faster); 0 = fresh Gaussian noise '
+              'every frame.', (0, 64)),
+    ParamSpec('distractors', INT, 0, 'Flat tags on the floor around the cube that are not on '
+              'it (ids n_tags..49 not on the cube).', (0, 20)),
+    ParamSpec('distractor_seed', INT, 0, 'Seed of the distractors.', SEED_RANGE),
+    ParamSpec('look_at_cube', BOOL, True, 'Start with the head pan/tilt pointing the camera '
+              'at the cube (ignored when initial_positions is given).'),
+    ParamSpec('initial_positions', DOUBLE_ARRAY, None, 'Initial joint positions, 13 values in '
+              'URDF joint order (as /joint_states); empty = all zero (arms hanging).'),
     # -- contacts and failures ------------------------------------------------------------
-    Param('hand_radius', DOUBLE, 0.03, 'Radius of the hand balls for contacts, m.',
-          (0.005, 0.2)),
-    Param('p_slip_grasp', DOUBLE, 0.0, 'Probability that a grasp slips (LIFT/FLIP: no '
-          'change).', (0.0, 1.0)),
-    Param('p_missed_push', DOUBLE, 0.0, 'Probability that a push meets nothing (no change).',
-          (0.0, 1.0)),
-    Param('p_push_neighbour', DOUBLE, 0.0, 'Probability that a push pivots the other way '
-          '(a sliding push pivots either way).', (0.0, 1.0)),
-    Param('orbit_odometry_noise', DOUBLE_ARRAY, [0.0, 0.0], '[sigma_m, sigma_rad]: at the end '
-          'of every base motion the true base pose moves by N(0, sigma_m^2) in x and y and '
-          'N(0, sigma_rad^2) in yaw, unseen by /odom.'),
-    Param('failure_seed', INT, 0, 'Seed of the failure draws, odometry noise and image noise.',
-          (0, 2**31 - 1)),
+    ParamSpec('hand_radius', DOUBLE, 0.03, 'Radius of the hand balls for contacts, m.',
+              (0.005, 0.2)),
+    probability('p_slip_grasp', 0.0, 'Probability that a grasp slips (LIFT/FLIP: no '
+                'change).'),
+    probability('p_missed_push', 0.0, 'Probability that a push meets nothing (no change).'),
+    probability('p_push_neighbour', 0.0, 'Probability that a push pivots the other way '
+                '(a sliding push pivots either way).'),
+    ParamSpec('orbit_odometry_noise', DOUBLE_ARRAY, [0.0, 0.0], '[sigma_m, sigma_rad]: at the '
+              'end of every base motion the true base pose moves by N(0, sigma_m^2) in x and '
+              'y and N(0, sigma_rad^2) in yaw, unseen by /odom.'),
+    ParamSpec('failure_seed', INT, 0, 'Seed of the failure draws, odometry noise and image '
+              'noise.', SEED_RANGE),
 )
 PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
 _BY_NAME = {p.name: p for p in PARAMETERS}
-# Parameters that act at once; all others take effect at the next ~/reset_world.
+# Parameters that act at once; the read-only ones at start only; all others take effect
+# at the next ~/reset_world.
 LIVE_PARAMETERS = frozenset({'speedup'})
 
 
 def defaults():
-    return {p.name: p.default for p in PARAMETERS}
+    return spec_defaults(PARAMETERS)
+
+
+def description_note(spec):
+    """When a change of the parameter takes effect (appended to its description)."""
+    if spec.read_only:
+        return ' (read at start only)'
+    return '' if spec.name in LIVE_PARAMETERS else ' (changes take effect at ~/reset_world)'
 
 
 @dataclass
@@ -176,8 +177,7 @@ def build(values):
     if unknown:
         raise ValueError(f'unknown parameters: {sorted(unknown)}')
     v.update(values)
-    for name, value in v.items():
-        _BY_NAME[name].check(value)
+    check_all(PARAMETERS, v)
     rate = float(v['rate'])
     speedup = check_speedup(v['speedup'])
     camera_rate = float(v['camera_rate'])
@@ -186,12 +186,6 @@ def build(values):
     gt_rate = float(v['ground_truth_rate'])
     if gt_rate > rate:
         raise ValueError(f'ground_truth_rate ({gt_rate} Hz) must not exceed rate ({rate} Hz)')
-    if v['camera_encoding'] not in ('mono8', 'bgr8'):
-        raise ValueError(f"camera_encoding must be 'mono8' or 'bgr8', got "
-                         f"{v['camera_encoding']!r}")
-    if v['model_set'] not in MODEL_SETS:
-        raise ValueError(f"model_set must be one of {', '.join(MODEL_SETS)}, got "
-                         f"{v['model_set']!r}")
     cube_size, tag_size = float(v['cube_size']), float(v['tag_size'])
     if not tag_size < cube_size:
         raise ValueError(f'tag_size ({tag_size} m) must be smaller than cube_size '
@@ -238,5 +232,23 @@ def build(values):
                            bool(v['look_at_cube']))
 
 
-__all__ = ['PARAMETERS', 'PARAMETER_NAMES', 'LIVE_PARAMETERS', 'Param', 'SimBridgeConfig',
-           'CameraConfig', 'build', 'check_speedup', 'defaults']
+def refusal(values, changes):
+    """Why a parameter change is refused ('' when it is accepted): `values` are the current
+    {name: value}, `changes` the new ones (names that are not the sim bridge's, such as
+    use_sim_time, are ignored). A change is accepted when the world it describes builds."""
+    changes = {name: value for name, value in changes.items() if name in _BY_NAME}
+    for name in changes:
+        if _BY_NAME[name].read_only:
+            return f'{name} is read at start only: restart'
+    if not changes:
+        return ''
+    try:
+        build({**values, **changes})
+    except ValueError as err:
+        return str(err)
+    return ''
+
+
+__all__ = ['LIVE_PARAMETERS', 'MODEL_SET_SPECS', 'PARAMETERS', 'PARAMETER_NAMES',
+           'CameraConfig', 'SimBridgeConfig', 'build', 'check_speedup', 'defaults',
+           'description_note', 'refusal']

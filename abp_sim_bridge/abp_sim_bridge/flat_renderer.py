@@ -1,4 +1,5 @@
-"""Camera renderer for the ARcube scene: plain NumPy + OpenCV, no rclpy.
+"""The rules world's fast camera renderer of the ARcube scene: plain NumPy + OpenCV, no
+rclpy.
 
 The scene is a floor plane (z = 0), a background wall colour above the horizon, one
 ARcube (six faces, each a white square with an ArUco tag centred on it) and optional
@@ -20,9 +21,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-FACE_NORMALS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
-)
+from abp_belief.cube import FACE_NORMALS  # body faces 0:+x 1:-x 2:+y 3:-y 4:+z 5:-z
+
 # "Up" of each tag's image, in the body frame: +z for side faces, -x on the top face
 # (so the robot, standing at +x, reads the top tag upright), +x on the bottom face.
 _FACE_TAG_UP = np.array(

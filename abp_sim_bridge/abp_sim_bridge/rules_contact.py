@@ -1,9 +1,9 @@
-"""Hand-cube contacts from the hands' real motion: push strokes, grasps, lifts, flips
-(plain NumPy, no rclpy).
+"""The rules world's hand-cube contacts from the hands' real motion: push strokes,
+grasps, lifts, flips (plain NumPy, no rclpy).
 
 `ContactTracker.update` is called once per simulation tick with the world positions of
 the two hand-ball centres. It implements the contact rules of docs/INTERFACES.md ("The
-cube and the manual actions") and hands every outcome to world.py's physics
+cube and the manual actions") and hands every outcome to rules_physics
 (`World.push`, `apply_lift`, `apply_flip`); it never looks at the ATG tables.
 
 Rules (hands are balls of radius `hand_radius` at the hand-link origins):
@@ -47,7 +47,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .world import (
+from abp_description.controllers import SIDES
+
+from .rules_physics import (
     FACE_NORMALS,
     OPPOSITE_FACE,
     SLID,
@@ -58,7 +60,6 @@ from .world import (
     apply_lift,
 )
 
-SIDES = ('left', 'right')
 _Z = np.array([0.0, 0.0, 1.0])
 
 
@@ -87,7 +88,7 @@ class ContactParams:
 @dataclass
 class ContactEvent:
     action: str        # 'PUSH', 'LIFT', 'FLIP', or '' (a contact that is no action)
-    effect: str        # world.py effect (slid, pivoted, rotated, unchanged, missed, ...)
+    effect: str        # rules_physics effect (slid, pivoted, rotated, unchanged, missed, ...)
     detail: str = ''
 
     @property

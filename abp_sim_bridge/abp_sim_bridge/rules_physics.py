@@ -1,4 +1,5 @@
-"""Physics of the ARcube world for the robot's actions (plain NumPy, no rclpy).
+"""The rules world's physics of the ARcube for the robot's actions (plain NumPy, no
+rclpy): outcomes of PUSH, LIFT, FLIP and ORBIT decided by rules.
 
 The outcome of PUSH, LIFT and FLIP is computed from the cube's hidden mass and from the
 motion the hands really made (contact points, stroke, grasp points), never from the ATG
@@ -29,30 +30,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-FACE_NORMALS = np.array(
-    [[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], dtype=float
-)
-OPPOSITE_FACE = (1, 0, 3, 2, 5, 4)
-NUM_YAWS = 8
+# MODEL.md's cube conventions (body faces, the reference rotations R_UP): geometry, not
+# the ATG tables.
+from abp_belief.cube import FACE_NORMALS, NUM_YAWS, OPPOSITE_FACE, R_UP
+from abp_description.frames import rot_z, se2_between, se2_compose, wrap_rad
+
 Z = np.array([0.0, 0.0, 1.0])
-
-
-def _cube_group():
-    """The 24 cube rotations in MODEL.md's canonical order: signed permutation matrices
-    Q[i, perm[i]] = sign[i] with det +1, over itertools.permutations((0, 1, 2)) then
-    itertools.product((1, -1), repeat=3)."""
-    group = []
-    for perm in itertools.permutations(range(3)):
-        for signs in itertools.product((1, -1), repeat=3):
-            q = np.zeros((3, 3))
-            q[np.arange(3), perm] = signs
-            if np.linalg.det(q) > 0:
-                group.append(q)
-    return np.array(group)
-
-
-# R_UP[f]: the reference rotation taking body face f to +z (first such group element).
-R_UP = np.array([next(q for q in _cube_group() if np.allclose(q @ n, Z)) for n in FACE_NORMALS])
 
 
 # -- small rotation helpers ---------------------------------------------------------------
@@ -63,10 +46,6 @@ def rotation_about(axis, angle):
     axis = axis / np.linalg.norm(axis)
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
-
-
-def rot_z(angle):
-    return rotation_about(Z, angle)
 
 
 def _orthonormalize(rot):
@@ -422,7 +401,7 @@ def facing_pose(cube_position, bearing, radius):
     facing the cube."""
     c = np.asarray(cube_position, dtype=float)
     return np.array([c[0] + radius * np.cos(bearing), c[1] + radius * np.sin(bearing),
-                     _wrap(bearing + np.pi)])
+                     wrap_rad(bearing + np.pi)])
 
 
 def apply_orbit(robot_pose, cube, angle, radius, rng=None, failures=None):
@@ -445,10 +424,6 @@ def apply_orbit(robot_pose, cube, angle, radius, rng=None, failures=None):
             real_angle += rng.choice([-1.0, 1.0]) * np.pi / 4
     real = facing_pose(centre, bearing - real_angle, real_radius)
     return OrbitResult(real, nominal, real_angle)
-
-
-def _wrap(angle):
-    return float((angle + np.pi) % (2 * np.pi) - np.pi)
 
 
 # -- ground truth: the discrete state of MODEL.md ----------------------------------------------
@@ -537,15 +512,3 @@ class World:
         self.robot_pose = out.pose
         return out
 
-
-def se2_compose(a, b):
-    """Pose a followed by the relative motion b, both (x, y, yaw)."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    return np.array([a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], _wrap(a[2] + b[2])])
-
-
-def se2_between(a, b):
-    """The relative motion taking pose a to pose b, in a's frame."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, _wrap(b[2] - a[2])])

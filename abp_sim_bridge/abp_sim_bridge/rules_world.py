@@ -1,5 +1,6 @@
-"""The simulated robot and world, stepped at a fixed rate of simulation time
-(plain NumPy + Pinocchio, no rclpy): what the sim_bridge node wraps.
+"""The rules world: the simulated robot and ARcube, stepped at a fixed rate of simulation
+time, with manual actions decided by contact rules (plain NumPy + Pinocchio, no rclpy);
+one of the worlds the sim_bridge node wraps.
 
 Each `step()` advances the simulation clock by one period 1/rate:
 
@@ -14,36 +15,24 @@ Each `step()` advances the simulation clock by one period 1/rate:
    joints move towards them at no more than their URDF velocity limits (so a feasible
    trajectory is tracked exactly) and stay within the position limits.
 3. **Contacts**: the hand-ball centres (Pinocchio FK over the joints, placed by the true
-   base pose) go to the `ContactTracker`, which calls world.py's physics.
+   base pose) go to the `ContactTracker`, which calls rules_physics.
 
 The base does not collide with the cube, and the arms and hands touch the cube only
 through the contact rules (no collision otherwise).
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pinocchio as pin
 
-from abp_description.kinematics import HAND_FRAMES, RobotKinematics, base_to_world
+from abp_description.controllers import CONTROLLERS, SIDES, WHEEL_JOINTS
+from abp_description.frames import base_to_world, integrate_twist, wrap_rad
+from abp_description.kinematics import HAND_FRAMES, RobotKinematics, look_at_world
 
-from .contact import SIDES, ContactEvent, ContactParams, ContactTracker
-from .trajectory import TrajectoryFollower
-from .world import World, discrete_state
-
-TORSO_JOINT = 'torso_pitch_joint'
-ARM_JOINTS = {s: tuple(f'{s}_{j}_joint' for j in
-                       ('shoulder_pitch', 'shoulder_roll', 'upper_arm_yaw', 'elbow'))
-              for s in SIDES}
-HEAD_JOINTS = ('head_pan_joint', 'head_tilt_joint')
-WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
-# Controller name (topic /<name>/joint_trajectory) -> its joints, in message order.
-CONTROLLERS = {
-    'torso_controller': (TORSO_JOINT,),
-    'left_arm_controller': ARM_JOINTS['left'],
-    'right_arm_controller': ARM_JOINTS['right'],
-    'head_controller': HEAD_JOINTS,
-}
+from .joint_trajectory_follower import TrajectoryFollower
+from .rules_contact import ContactEvent, ContactParams, ContactTracker
+from .rules_physics import Physics, World, discrete_state
 
 
 @dataclass
@@ -70,38 +59,7 @@ class SimSettings:
         return int(round(1e9 / self.rate))
 
 
-def _wrap(a):
-    return float((a + np.pi) % (2 * np.pi) - np.pi)
-
-
-def integrate_twist(pose, v, w, dt):
-    """Planar pose (x, y, yaw) after driving at (v, w) for dt (exact arc)."""
-    x, y, th = (float(c) for c in pose)
-    if abs(w) < 1e-9:
-        return np.array([x + v * dt * np.cos(th), y + v * dt * np.sin(th), th])
-    th2 = th + w * dt
-    return np.array([x + v / w * (np.sin(th2) - np.sin(th)),
-                     y - v / w * (np.cos(th2) - np.cos(th)), _wrap(th2)])
-
-
-def look_at(kin, q, base_pose, target, iterations=10):
-    """`q` with the head pan/tilt (within limits) pointing the camera's optical axis at the
-    world point `target` from the base pose (x, y, yaw)."""
-    q = np.asarray(q, dtype=float).copy()
-    pan, tilt = kin.joint_index(HEAD_JOINTS[0]), kin.joint_index(HEAD_JOINTS[1])
-    target = np.asarray(target, dtype=float)
-    for _ in range(iterations):
-        cam = base_to_world(base_pose) @ kin.camera_pose(q)
-        d = cam[:3, :3].T @ (target - cam[:3, 3])  # optical frame: x right, y down, z ahead
-        if d[2] <= 1e-9:
-            break
-        q[pan] -= np.arctan2(d[0], d[2])
-        q[tilt] += np.arctan2(d[1], np.hypot(d[0], d[2]))
-        q = kin.clip(q)
-    return q
-
-
-class SimWorld:
+class RulesWorld:
     """Robot (joints + base) and ARcube world, advanced by `step()`."""
 
     def __init__(self, world: World, settings=None, kinematics=None, start_time_ns=0):
@@ -184,7 +142,7 @@ class SimWorld:
         self.cmd_time_ns = self.time_ns
 
     def set_trajectory(self, controller, joint_names, points, stamp_s=0.0):
-        """Start a trajectory on a controller (see trajectory.TrajectoryFollower)."""
+        """Start a trajectory on a controller (see joint_trajectory_follower)."""
         follower, idx = self.controllers[controller]
         return follower.set_trajectory(joint_names, points, stamp_s, self.time,
                                        self.q[idx], self.qd[idx])
@@ -243,7 +201,7 @@ class SimWorld:
                         rng.normal(0.0, sigma_rad) if sigma_rad > 0 else 0.0])
         pose = self.world.robot_pose
         self.world.robot_pose = np.array([pose[0] + err[0], pose[1] + err[1],
-                                          _wrap(pose[2] + err[2])])
+                                          wrap_rad(pose[2] + err[2])])
         self.events.append((self.time_ns, ContactEvent(
             '', 'odometry error', f'dx {err[0]:+.3f} m, dy {err[1]:+.3f} m, '
             f'dyaw {np.degrees(err[2]):+.1f} deg')))
@@ -263,4 +221,17 @@ class SimWorld:
         return self.world.odometry_pose.copy()
 
 
-__all__ = ['CONTROLLERS', 'SimSettings', 'SimWorld', 'integrate_twist', 'look_at']
+def make_rules_world(config, kin, start_time_ns=0):
+    """The rules world a sim_bridge configuration (`config.build`) describes: the base at
+    the odom origin facing +x and, when `look_at_cube` is set and no initial_positions are
+    given, the head aimed at the cube."""
+    settings = config.settings
+    if not settings.initial_positions and config.look_at_cube:
+        q0, _ = look_at_world(kin, kin.neutral(), np.zeros(3), config.cube.position)
+        settings = replace(settings, initial_positions=tuple(q0))
+    world = World(config.cube, np.zeros(3), config.failures, Physics(),
+                  seed=config.failure_seed)
+    return RulesWorld(world, settings, kin, start_time_ns)
+
+
+__all__ = ['RulesWorld', 'SimSettings', 'make_rules_world']

@@ -11,9 +11,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from abp_belief.population import MODEL_SETS
+from abp_description.frames import rot_z
 
-from .renderer import Distractor
-from .world import R_UP, Cube, rot_z
+from .flat_renderer import Distractor
+from .rules_physics import R_UP, Cube
 
 MAX_TAG_ID = 49  # ArUco DICT_4X4_50
 
@@ -58,7 +59,7 @@ def check_face_tags(face_tags):
 
 def load_model_set(model_set='robot', model_set_size=30, n_tags=7, seed=0, model_file=''):
     """The abp_belief ModelSet the belief node builds from the same parameters."""
-    from abp_belief import io as model_io
+    from abp_belief import model_file as model_io
     from abp_belief.population import model_set_from_config
 
     try:
@@ -133,5 +134,16 @@ def make_distractors(count, seed, cube_xy, tag_size=0.08, first_id=7, avoid=(),
     return out
 
 
+def drawn_tags(face_tags, p_missed_tag, rng):
+    """The face tags drawn in one camera frame: each is left blank (-1, a missed tag) with
+    probability `p_missed_tag`, the fault injection for perception."""
+    tags = np.asarray(face_tags)
+    if p_missed_tag <= 0:
+        return tuple(int(t) for t in tags)
+    missed = rng.random(tags.size) < p_missed_tag
+    return tuple(int(t) for t in np.where(missed, -1, tags))
+
+
 __all__ = ['HiddenModel', 'MODEL_SETS', 'canonical_name', 'check_face_tags',
-           'choose_hidden_model', 'initial_cube', 'load_model_set', 'make_distractors']
+           'choose_hidden_model', 'drawn_tags', 'initial_cube', 'load_model_set',
+           'make_distractors']

@@ -9,17 +9,12 @@ joint-space interpolation of the trajectory controller keeps the hands on the pa
 
 import numpy as np
 
+from abp_description.controllers import ARM_JOINTS, CONTROLLERS, SIDES, TORSO_JOINT
+from abp_description.frames import rot_z_deg
 from abp_description.kinematics import RobotKinematics
 
-SIDES = ('left', 'right')
-ARM = {s: tuple(f'{s}_{j}_joint' for j in ('shoulder_pitch', 'shoulder_roll',
-                                           'upper_arm_yaw', 'elbow')) for s in SIDES}
-TORSO = 'torso_pitch_joint'
-CONTROLLER_JOINTS = {
-    'torso_controller': (TORSO,),
-    'left_arm_controller': ARM['left'],
-    'right_arm_controller': ARM['right'],
-}
+# The controllers that move the hands (the head's does not).
+CONTROLLER_JOINTS = {c: joints for c, joints in CONTROLLERS.items() if c != 'head_controller'}
 HAND_RADIUS = 0.03
 
 
@@ -29,8 +24,8 @@ class DlsIK:
     def __init__(self, kin=None):
         self.kin = kin or RobotKinematics()
         k = self.kin
-        self.torso = k.joint_index(TORSO)
-        self.arm = {s: [k.joint_index(j) for j in ARM[s]] for s in SIDES}
+        self.torso = k.joint_index(TORSO_JOINT)
+        self.arm = {s: [k.joint_index(j) for j in ARM_JOINTS[s]] for s in SIDES}
 
     def hand(self, q, side):
         return self.kin.frame_pose(q, f'{side}_hand_link')[:3, 3]
@@ -185,11 +180,6 @@ def ry(deg):
     return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
 
 
-def rz(deg):
-    a = np.radians(deg)
-    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-
-
 FACE_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],
                         float)
 
@@ -201,9 +191,9 @@ def model_md_rotation(action, d):
         return d is not None and np.allclose(d, v)
     if action == 'PUSH':
         if is_([0, 1, 0]):
-            return rz(-45)     # d = +y: yaw -= 1
+            return rot_z_deg(-45)     # d = +y: yaw -= 1
         if is_([0, -1, 0]):
-            return rz(45)      # d = -y: yaw += 1
+            return rot_z_deg(45)      # d = -y: yaw += 1
         return np.eye(3)       # none, +-x, +-z: slides
     if action == 'LIFT':
         if is_([0, 0, 1]):

@@ -1,4 +1,4 @@
-"""World physics against MODEL.md's rules, written out independently here.
+"""The rules world's physics against MODEL.md's rules, written out independently here.
 
 Contacts are computed geometrically from the cube's faces as the robot sees them (V frame):
 PUSH at the front face centre along -x_V, LIFT/FLIP grasps at the centres of the +-y_V
@@ -9,9 +9,12 @@ import itertools
 
 import numpy as np
 import pytest
+from sim_hand_paths import FACE_NORMALS as NORMALS
+from sim_hand_paths import rx, ry
 
-from abp_sim_bridge import world as W
-from abp_sim_bridge.world import (
+from abp_description.frames import rot_z_deg
+from abp_sim_bridge import rules_physics as W
+from abp_sim_bridge.rules_physics import (
     BLOCKED,
     MISSED,
     PIVOTED,
@@ -33,29 +36,13 @@ from abp_sim_bridge.world import (
 
 EDGE = 0.10
 H = EDGE / 2
-NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float)
 
 
-def rx(deg):
-    a = np.radians(deg)
-    return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-
-
-def ry(deg):
-    a = np.radians(deg)
-    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-
-
-def rz(deg):
-    a = np.radians(deg)
-    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
-
-
-# The 24 cube rotations (every up face x 4 yaws), built independently of world.py.
+# The 24 cube rotations (every up face x 4 yaws), built independently of rules_physics.py.
 ORIENTATIONS = []
 for up_rot in (np.eye(3), rx(90), rx(180), rx(-90), ry(90), ry(-90)):
     for k in range(4):
-        ORIENTATIONS.append(rz(90 * k) @ up_rot)
+        ORIENTATIONS.append(rot_z_deg(90 * k) @ up_rot)
 
 
 # --- MODEL.md's expected rotation Q in V (R' = Q R), per action and mass direction d ----------
@@ -66,9 +53,9 @@ def close(d, v):
 
 def expected_push(d):
     if close(d, [0, 1, 0]):
-        return rz(-45)
+        return rot_z_deg(-45)
     if close(d, [0, -1, 0]):
-        return rz(45)
+        return rot_z_deg(45)
     return np.eye(3)
 
 
@@ -100,9 +87,9 @@ RADIUS = 0.35
 
 
 def scene(rel_rotation, heavy_face, rel_yaw_deg=0.0):
-    """Cube whose orientation in V is rz(rel_yaw) @ rel_rotation, robot at BEARING."""
-    v_to_world = rz(np.degrees(BEARING))
-    cube = Cube.on_floor(*CUBE_XY, v_to_world @ rz(rel_yaw_deg) @ rel_rotation, heavy_face)
+    """Cube whose orientation in V is rot_z_deg(rel_yaw) @ rel_rotation, robot at BEARING."""
+    v_to_world = rot_z_deg(np.degrees(BEARING))
+    cube = Cube.on_floor(*CUBE_XY, v_to_world @ rot_z_deg(rel_yaw_deg) @ rel_rotation, heavy_face)
     robot = facing_pose(cube.position, BEARING, RADIUS)
     return cube, robot, v_to_world
 
@@ -373,9 +360,9 @@ def test_discrete_state_rounds_to_nearest_and_ignores_heading():
 
 
 def test_settle_snaps_small_tilts():
-    cube = Cube(np.array([0.0, 0.0, 0.3]), rx(8) @ rz(20), None)
+    cube = Cube(np.array([0.0, 0.0, 0.3]), rx(8) @ rot_z_deg(20), None)
     settled = W.settle(cube)
-    np.testing.assert_allclose(settled.rotation, rz(20), atol=1e-9)
+    np.testing.assert_allclose(settled.rotation, rot_z_deg(20), atol=1e-9)
     assert settled.position[2] == pytest.approx(H)
 
 

@@ -1,18 +1,28 @@
-"""The plain pieces of the sim bridge, without ROS: trajectory following, base integration
+"""The plain pieces of the rules world, without ROS: trajectory following, base integration
 and odometry noise, contact detection from hand motion (synthetic hand paths and real
 joint trajectories through the kinematics), failure injection, and the parameter checks."""
 
 import numpy as np
 import pytest
-from sim_hand_paths import DlsIK, expected_state, hand_path, rz, view_rotation
+from sim_hand_paths import DlsIK, expected_state, hand_path, view_rotation
 
-from abp_description.kinematics import RobotKinematics
+from abp_description.frames import rot_z_deg
+from abp_description.kinematics import RobotKinematics, look_at_world
 from abp_sim_bridge import config as cfg
-from abp_sim_bridge.contact import ContactParams, ContactTracker
-from abp_sim_bridge.scenario import canonical_name, choose_hidden_model, make_distractors
-from abp_sim_bridge.sim_world import SimSettings, SimWorld, look_at
-from abp_sim_bridge.trajectory import TrajectoryError, TrajectoryFollower, TrajectoryPoint
-from abp_sim_bridge.world import Cube, Failures, World
+from abp_sim_bridge.joint_trajectory_follower import (
+    TrajectoryError,
+    TrajectoryFollower,
+    TrajectoryPoint,
+)
+from abp_sim_bridge.rules_contact import ContactParams, ContactTracker
+from abp_sim_bridge.rules_physics import Cube, Failures, World
+from abp_sim_bridge.rules_world import RulesWorld, SimSettings, make_rules_world
+from abp_sim_bridge.scenario import (
+    canonical_name,
+    choose_hidden_model,
+    drawn_tags,
+    make_distractors,
+)
 
 R = 0.03  # hand ball radius
 H = 0.05  # half the cube edge
@@ -85,7 +95,7 @@ def test_trajectory_refuses_bad_messages(names, points, match):
 
 def make_sim(kin, cube=None, failures=None, seed=0, **settings):
     cube = cube or Cube.on_floor(0.40, 0.0)
-    return SimWorld(World(cube, np.zeros(3), failures or Failures(), seed=seed),
+    return RulesWorld(World(cube, np.zeros(3), failures or Failures(), seed=seed),
                     SimSettings(**settings), kin)
 
 
@@ -131,10 +141,29 @@ def test_joints_respect_velocity_limits(kin):
 
 def test_look_at_points_the_camera_at_the_cube(kin):
     target = np.array([0.9, 0.3, 0.05])
-    q = look_at(kin, kin.neutral(), (0.0, 0.0, 0.0), target)
+    q, _ = look_at_world(kin, kin.neutral(), (0.0, 0.0, 0.0), target)
     cam = kin.camera_pose(q)
     d = cam[:3, :3].T @ (target - cam[:3, 3])
     assert np.degrees(np.arctan2(np.hypot(d[0], d[1]), d[2])) < 0.5
+
+
+def test_make_rules_world_aims_the_head_at_the_cube(kin):
+    config = cfg.build({'cube_x': 0.9, 'cube_y': 0.3})
+    sim = make_rules_world(config, kin, start_time_ns=5_000_000_000)
+    assert sim.time_ns == 5_000_000_000 and np.allclose(sim.world.robot_pose, 0.0)
+    cam = sim.camera_pose()
+    d = cam[:3, :3].T @ (config.cube.position - cam[:3, 3])
+    assert np.degrees(np.arctan2(np.hypot(d[0], d[1]), d[2])) < 0.5
+    straight = make_rules_world(cfg.build({'look_at_cube': False}), kin)
+    assert np.allclose(straight.q, kin.neutral())
+
+
+def test_drawn_tags_leave_tags_blank_with_p_missed_tag():
+    rng = np.random.default_rng(0)
+    assert drawn_tags([3, 0, 6, 2, 5, 1], 0.0, rng) == (3, 0, 6, 2, 5, 1)
+    draws = [drawn_tags(range(6), 0.5, rng) for _ in range(200)]
+    assert all(t in (-1, i) for d in draws for i, t in enumerate(d))
+    assert 0.4 < np.mean([t == -1 for d in draws for t in d]) < 0.6
 
 
 # -- contacts from synthetic hand paths ---------------------------------------------------------
@@ -190,11 +219,11 @@ def test_push_from_above_glances_off():
 
 
 def test_push_on_a_cube_at_45_degrees_does_nothing():
-    world = World(Cube.on_floor(0.40, 0.0, rz(45)), np.zeros(3))
+    world = World(Cube.on_floor(0.40, 0.0, rot_z_deg(45)), np.zeros(3))
     tracker = ContactTracker()
     events = drive(world, tracker, push_path(x_touch=0.40 - H * np.sqrt(2) - R))
     assert not any(e.is_action for e in events)
-    assert np.allclose(world.cube.rotation, rz(45))
+    assert np.allclose(world.cube.rotation, rot_z_deg(45))
 
 
 @pytest.mark.parametrize('failures, effect', [
@@ -351,8 +380,8 @@ def test_hidden_model_and_distractors_are_seeded():
 
 def test_noise_bank_is_seeded_fresh_each_frame_and_has_the_right_spread():
     from abp_description import camera_intrinsics
-    from abp_sim_bridge.renderer import ArcubeRenderer, ImageEffects
-    from abp_sim_bridge.renderer import look_at as cam_look_at
+    from abp_sim_bridge.flat_renderer import ArcubeRenderer, ImageEffects
+    from abp_sim_bridge.flat_renderer import look_at as cam_look_at
 
     intr = camera_intrinsics()
     fx = ImageEffects(noise_std=4.0)

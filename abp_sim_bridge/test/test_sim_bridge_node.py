@@ -20,26 +20,24 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
-from rclpy.qos import (  # noqa: E402
-    QoSDurabilityPolicy,
-    QoSProfile,
-    QoSReliabilityPolicy,
-    qos_profile_sensor_data,
-)
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
 from sim_hand_paths import DlsIK, expected_state, hand_path, view_rotation  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 
+from abp_common import qos  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
-from abp_description.kinematics import RobotKinematics, base_to_world  # noqa: E402
+from abp_description.frames import (  # noqa: E402
+    base_to_world,
+    rotation_from_quaternion,
+    yaw_of_quaternion,
+)
+from abp_description.kinematics import RobotKinematics  # noqa: E402
 from abp_msgs.msg import SimGroundTruth  # noqa: E402
-from abp_sim_bridge.renderer import visible_faces  # noqa: E402
+from abp_sim_bridge.flat_renderer import visible_faces  # noqa: E402
 
-LATCHED = QoSProfile(depth=1, reliability=QoSReliabilityPolicy.RELIABLE,
-                     durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
-RELIABLE = QoSProfile(depth=200, reliability=QoSReliabilityPolicy.RELIABLE)
+RELIABLE = qos.reliable(200)  # the tests read whole streams of 50 Hz state
 TAGS = [0, 1, 2, 3, 4, 5]
 
 
@@ -61,22 +59,16 @@ def to_duration(seconds):
     return Duration(sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
 
 
-def rot_to_matrix(q):
-    x, y, z, w = q.x, q.y, q.z, q.w
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
-
-
 def pose_matrix(pose):
     out = np.eye(4)
-    out[:3, :3] = rot_to_matrix(pose.orientation)
+    q = pose.orientation
+    out[:3, :3] = rotation_from_quaternion(q.x, q.y, q.z, q.w)
     out[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
     return out
 
 
 def yaw_of(q):
-    return float(np.arctan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z)))
+    return yaw_of_quaternion(q.x, q.y, q.z, q.w)
 
 
 class Tester:  # noqa: D101
@@ -94,13 +86,13 @@ class Tester:  # noqa: D101
             'clock': (Clock, '/clock', RELIABLE),
             'joint_states': (JointState, '/joint_states', RELIABLE),
             'odom': (Odometry, '/odom', RELIABLE),
-            'image': (Image, '/camera/image_raw', qos_profile_sensor_data),
-            'camera_info': (CameraInfo, '/camera/camera_info', qos_profile_sensor_data),
-            'ground_truth': (SimGroundTruth, '/abp/sim/ground_truth', LATCHED),
+            'image': (Image, '/camera/image_raw', qos.SENSOR_DATA),
+            'camera_info': (CameraInfo, '/camera/camera_info', qos.SENSOR_DATA),
+            'ground_truth': (SimGroundTruth, '/abp/sim/ground_truth', qos.LATCHED),
         }
         for name in topics:
-            msg_type, topic, qos = spec[name]
-            self.node.create_subscription(msg_type, topic, self._collector(name), qos)
+            msg_type, topic, profile = spec[name]
+            self.node.create_subscription(msg_type, topic, self._collector(name), profile)
 
     def _collector(self, name):
         def collect(msg):

@@ -14,14 +14,12 @@ from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSDurabilityPolicy, QoSProfile, QoSReliabilityPolicy
 
 import abp_msgs.msg
+from abp_common import qos
 from abp_msgs.action import Orbit
 from abp_msgs.srv import CheckFeasibility, ResetBelief
 
-RELIABLE = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE,
-                      durability=QoSDurabilityPolicy.VOLATILE)
 PHASES = ("approach", "contact", "stroke", "retreat")
 
 
@@ -36,9 +34,9 @@ class EchoNode(Node):
         group = ReentrantCallbackGroup()
         self._keep = []
         for name, msg_type in message_types().items():
-            publisher = self.create_publisher(msg_type, f"/roundtrip/out/{name}", RELIABLE)
+            publisher = self.create_publisher(msg_type, f"/roundtrip/out/{name}", qos.RELIABLE)
             self._keep.append(self.create_subscription(
-                msg_type, f"/roundtrip/in/{name}", publisher.publish, RELIABLE))
+                msg_type, f"/roundtrip/in/{name}", publisher.publish, qos.RELIABLE))
         self.create_service(CheckFeasibility, "/roundtrip/check_feasibility", self._feasibility)
         self.create_service(ResetBelief, "/roundtrip/reset_belief", self._reset)
         self._orbit = ActionServer(

@@ -1,10 +1,10 @@
 """Test fixture process: a model-sampled world behind the real skill interfaces.
 
 It stands in for the sim bridge + perception + skills *as a world*, not as a
-mock of ROS: it serves the real /abp/skills/{orbit,push,lift,flip} actions and
-/abp/skills/check_feasibility over DDS, samples each action's outcome from the
-true model's transition probabilities (the paper's simulation protocol), and
-publishes /abp/aspect_observation at 5 Hz with observations sampled from the
+mock of ROS: it serves the real abp/skills/{orbit,push,lift,flip} actions and
+abp/skills/check_feasibility over DDS (abp_common.names), samples each action's
+outcome from the true model's transition probabilities (the paper's simulation
+protocol), and publishes abp/aspect_observation at 5 Hz with observations sampled from the
 observation model of the current state. It lets the planner and belief nodes be
 tested end to end before (and independently of) the rendered simulation.
 
@@ -20,16 +20,17 @@ from rclpy.action import ActionServer, CancelResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 
 from abp_belief import population
-from abp_belief.cube import ACTIONS, STATES_PER_MODEL, action_index
+from abp_belief.cube import ACTIONS, ORBIT_STEPS, STATES_PER_MODEL, action_index
+from abp_common import names, qos
 from abp_msgs.action import Flip, Lift, Orbit, Push
 from abp_msgs.msg import AspectHypothesis, AspectObservation
 from abp_msgs.srv import CheckFeasibility
 
-ORBIT_ACTIONS = {45.0: "ORBIT_P45", -45.0: "ORBIT_M45", 90.0: "ORBIT_P90", -90.0: "ORBIT_M90",
-                 180.0: "ORBIT_180"}
+# Orbit goal angle (deg) -> the ATG action it is.
+ORBIT_ACTIONS = {45.0 * steps: action for action, steps in ORBIT_STEPS.items()}
+SKILL_TYPES = {"orbit": Orbit, "push": Push, "lift": Lift, "flip": Flip}
 
 
 class ModelWorld(Node):
@@ -42,16 +43,14 @@ class ModelWorld(Node):
         self.infeasible_action = infeasible_action
         self.executed = []
         group = ReentrantCallbackGroup()
-        self.pub = self.create_publisher(AspectObservation, "/abp/aspect_observation",
-                                         QoSProfile(depth=10,
-                                                    reliability=QoSReliabilityPolicy.RELIABLE))
+        self.pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
+                                         qos.RELIABLE)
         self.create_timer(0.2, self.publish_observation, callback_group=group)
-        for name, action_type in (("orbit", Orbit), ("push", Push), ("lift", Lift),
-                                  ("flip", Flip)):
-            ActionServer(self, action_type, f"/abp/skills/{name}",
+        for name, action_type in SKILL_TYPES.items():
+            ActionServer(self, action_type, names.skill_action(name),
                          lambda handle, n=name: self.execute(n, handle),
                          cancel_callback=lambda _: CancelResponse.ACCEPT, callback_group=group)
-        self.create_service(CheckFeasibility, "/abp/skills/check_feasibility", self.feasibility,
+        self.create_service(CheckFeasibility, names.CHECK_FEASIBILITY, self.feasibility,
                             callback_group=group)
 
     def publish_observation(self):
@@ -76,7 +75,7 @@ class ModelWorld(Node):
     def execute(self, skill, handle):
         goal = handle.request
         action = ORBIT_ACTIONS.get(goal.angle_deg) if skill == "orbit" else skill.upper()
-        result = {"orbit": Orbit, "push": Push, "lift": Lift, "flip": Flip}[skill].Result()
+        result = SKILL_TYPES[skill].Result()
         time.sleep(0.1)  # the skill "moves"
         if handle.is_cancel_requested:
             handle.canceled()

@@ -1,0 +1,31 @@
+from setuptools import find_packages, setup
+
+PACKAGE = 'abp_bench'
+
+setup(
+    name=PACKAGE,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
+        ('share/' + PACKAGE, ['package.xml']),
+    ],
+    install_requires=['setuptools'],
+    zip_safe=True,
+    maintainer='abp maintainers',
+    maintainer_email='abp-maintainers@example.com',
+    description='Every abp benchmark and the rendered perception scenes (never needed on a robot).',
+    license='Apache-2.0',
+    entry_points={
+        'console_scripts': [
+            'bench_filter = abp_bench.filter_benchmark:main',
+            'planner_benchmark = abp_bench.planner_benchmark:main',
+            'perception_benchmark = abp_bench.perception_benchmark:main',
+            'skills_benchmark = abp_bench.skills_benchmark:main',
+            'sim_bridge_benchmark = abp_bench.sim_bridge_benchmark:main',
+            'render_benchmark = abp_bench.render_benchmark:main',
+            'graph_benchmark = abp_bench.graph_benchmark:main',
+            'outcome_survey = abp_bench.outcome_survey:main',
+        ],
+    },
+)

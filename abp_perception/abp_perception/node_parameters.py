@@ -1,0 +1,71 @@
+"""Parameter tables of the two perception nodes (ROS-free; the nodes declare them with
+`abp_common.parameters.declare_all`).
+
+`DETECTOR_SPECS`: the `artag_detector` node; `DETECTOR_PARAMETERS` are the ones a running
+detector is rebuilt from when they change. `MATCHER_SPECS`: the `aspect_matcher` node,
+after the model-set parameters it shares with the belief node
+(`abp_belief.model_set_config.MODEL_SET_SPECS`); `MATCHER_PARAMETERS` can change at run
+time.
+"""
+
+from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
+
+from .detector import DICTIONARY_NAMES
+
+DETECTOR_SPECS = (
+    ParamSpec('dictionary', STRING, 'DICT_4X4_50', 'ArUco dictionary (OpenCV name).',
+              read_only=True, choices=DICTIONARY_NAMES),
+    ParamSpec('marker_size', DOUBLE, 0.08, "Edge of a tag's black square, m.", (0.005, 2.0)),
+    ParamSpec('base_frame', STRING, 'base_link', 'Frame of the published poses (robot base).',
+              read_only=True),
+    ParamSpec('camera_frame', STRING, 'camera_optical_frame',
+              "URDF frame of the camera, used when the image's frame_id is not in the URDF.",
+              read_only=True),
+    ParamSpec('urdf_file', STRING, '', "URDF for the kinematics; empty = abp_description's.",
+              read_only=True),
+    ParamSpec('corner_sigma_px', DOUBLE, 0.08, 'Base corner noise of the covariance model, px.',
+              (0.001, 10.0)),
+    ParamSpec('max_reprojection_error', DOUBLE, 2.0, 'Drop poses with a larger RMS error, px.',
+              (0.01, 100.0)),
+    ParamSpec('min_side_px', DOUBLE, 6.0, 'Drop tags smaller than this in the image, px.',
+              (1.0, 1000.0)),
+    ParamSpec('refine_corners', BOOL, True, 'Edge-fit sub-pixel corners (else OpenCV SUBPIX).'),
+    ParamSpec('second_pass', BOOL, True, 'Decode candidates that ArUco rejected, after '
+              'refining.'),
+)
+DETECTOR_PARAMETERS = ('marker_size', 'corner_sigma_px', 'max_reprojection_error',
+                       'min_side_px', 'refine_corners', 'second_pass')
+
+MATCHER_SPECS = (
+    ParamSpec('base_frame', STRING, 'base_link', 'Frame the detections must be in (robot '
+              'base; its origin defines the view frame).', read_only=True),
+    ParamSpec('voxel_size', DOUBLE, 0.0, 'Hough accumulator voxel, m; 0 = cube_size / 4.',
+              (0.0, 1.0)),
+    ParamSpec('peak_radius', DOUBLE, 0.0, 'Votes within this distance of a peak support it, '
+              'm; 0 = cube_size / 2.', (0.0, 1.0)),
+    ParamSpec('orientation_sigma_deg', DOUBLE, 15.0, "Tolerance of a vote's rotation against "
+              'the view frame, deg.', (1.0, 180.0)),
+    ParamSpec('min_pair_score', DOUBLE, 0.05, 'Minimum Gaussian-correlation score of a vote.',
+              (0.0, 1.0)),
+    ParamSpec('min_support', DOUBLE, 0.05, 'Minimum support of a reported hypothesis.',
+              (0.0, 100.0)),
+    ParamSpec('max_hypotheses', INT, 10, 'Hypotheses per observation, best first.', (1, 1000)),
+    ParamSpec('distance_samples', INT, 0, 'Sample the inter-feature distance Gaussians with '
+              'this many samples (paper); 0 = propagate the covariances.', (0, 10000)),
+)
+MATCHER_PARAMETERS = tuple(p.name for p in MATCHER_SPECS if not p.read_only)
+
+
+def matcher_options(values):
+    """AspectMatcher keyword arguments from {name: value} of MATCHER_SPECS (0 = derive
+    the voxel size and peak radius from the cube size)."""
+    return dict(voxel_size=values['voxel_size'] or None,
+                peak_radius=values['peak_radius'] or None,
+                orientation_sigma_deg=values['orientation_sigma_deg'],
+                min_pair_score=values['min_pair_score'], min_support=values['min_support'],
+                max_hypotheses=values['max_hypotheses'],
+                distance_samples=values['distance_samples'])
+
+
+__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'MATCHER_PARAMETERS', 'MATCHER_SPECS',
+           'matcher_options']

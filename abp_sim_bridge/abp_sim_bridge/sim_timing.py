@@ -1,0 +1,127 @@
+"""When the sim_bridge's simulation thread ticks and publishes (plain Python, no rclpy).
+
+- `Pacer`: simulation time against wall time at a speed-up; catching up when a tick is
+  late, giving up (simulation time runs slower) when too far behind, and the real-time
+  factor report. The wall clock is injected, so the rules are unit-tested without sleeps.
+- `CameraSchedule`, `GroundTruthSchedule`: which ticks (simulation time) publish a camera
+  frame and the ground truth.
+
+Simulation times are integer nanoseconds; wall times float seconds.
+"""
+
+import time
+
+MAX_LAG_WALL_S = 0.1        # further behind than this: stop trying to catch up (re-anchor)
+MAX_WAIT_WALL_S = 0.05      # longest single wait, so a stop or a new speed-up is seen soon
+REPORT_PERIOD_WALL_S = 10.0  # how often the real-time factor is checked
+SLOW_FRACTION = 0.9         # a factor below this share of the speed-up is reported
+
+
+class Pacer:
+    """Paces simulation ticks to `speedup` x wall time.
+
+    Simulation time is anchored to a wall-clock instant: the tick to simulation time t is
+    due when the wall clock reaches wall0 + (t - sim0) / speedup. Late ticks run at once
+    (catching up), unless the simulation is more than `max_lag_wall_s` behind: then the
+    anchor moves to now, and simulation time simply runs slower than asked for (never
+    inconsistently). A new speed-up also moves the anchor. `clock()` returns wall seconds
+    (monotonic)."""
+
+    def __init__(self, speedup, sim_ns, clock=time.monotonic, max_lag_wall_s=MAX_LAG_WALL_S,
+                 max_wait_wall_s=MAX_WAIT_WALL_S, report_period_s=REPORT_PERIOD_WALL_S,
+                 slow_fraction=SLOW_FRACTION):
+        self._clock = clock
+        self.max_lag_wall_s = max_lag_wall_s
+        self.max_wait_wall_s = max_wait_wall_s
+        self.report_period_s = report_period_s
+        self.slow_fraction = slow_fraction
+        self.speedup = self._requested = float(speedup)
+        self._now = self._wall0 = clock()
+        self._sim0 = int(sim_ns)
+        self._report_wall, self._report_sim = self._wall0, self._sim0
+
+    def set_speedup(self, speedup):
+        """Ask for a new speed-up (from any thread); it applies at the next `wait_s`."""
+        self._requested = float(speedup)
+
+    def wait_s(self, sim_ns, next_ns):
+        """Wall seconds to wait before the tick from `sim_ns` to `next_ns`; 0.0: tick now."""
+        now = self._clock()
+        if self._requested != self.speedup:
+            self.speedup = self._requested
+            self._wall0, self._sim0 = now, sim_ns
+        ns_per_wall_s = self.speedup * 1e9
+        target = self._sim0 + (now - self._wall0) * ns_per_wall_s
+        if next_ns > target:
+            return min((next_ns - target) / ns_per_wall_s, self.max_wait_wall_s)
+        if (target - next_ns) / ns_per_wall_s > self.max_lag_wall_s:
+            # Too far behind to catch up smoothly: let simulation time run slower.
+            self._wall0, self._sim0 = now, sim_ns
+        self._now = now
+        return 0.0
+
+    def ticked(self, sim_ns):
+        """Call after each tick (now at `sim_ns`). Every `report_period_s`: the real-time
+        factor reached over the period when it fell short of the speed-up, else None."""
+        elapsed = self._now - self._report_wall
+        if elapsed <= self.report_period_s:
+            return None
+        factor = (sim_ns - self._report_sim) * 1e-9 / elapsed
+        self._report_wall, self._report_sim = self._now, sim_ns
+        return factor if factor < self.slow_fraction * self.speedup else None
+
+
+def _period_ns(rate_hz):
+    return int(round(1e9 / rate_hz)) if rate_hz > 0 else 0
+
+
+class CameraSchedule:
+    """Camera frames at whole multiples of the camera period (t = 0.1, 0.2, ... s at 10 Hz),
+    from the first tick after `start_ns`; rate 0: none. A tick that falls behind by more
+    than a period skips the missed frames (one frame per tick at most)."""
+
+    def __init__(self, rate_hz, start_ns, tick_ns):
+        self.period_ns = _period_ns(rate_hz)
+        self.next_ns = None
+        if self.period_ns:
+            p = self.period_ns
+            self.next_ns = ((start_ns + tick_ns + p - 1) // p) * p
+
+    def due(self, t_ns):
+        """True when the tick at `t_ns` draws a frame."""
+        if self.next_ns is None or t_ns < self.next_ns:
+            return False
+        self.next_ns += self.period_ns
+        if self.next_ns <= t_ns:
+            self.next_ns = t_ns + self.period_ns
+        return True
+
+
+class GroundTruthSchedule:
+    """Ground truth every 1/rate of simulation time from the first tick after `start_ns`,
+    and at once on the first tick and after every contact event (rate 0: only then)."""
+
+    def __init__(self, rate_hz, start_ns, tick_ns):
+        self.period_ns = _period_ns(rate_hz)
+        self.next_ns = start_ns + tick_ns
+        self._first = True
+
+    def due(self, t_ns, events=False):
+        """True when the tick at `t_ns` (with new contact events or not) publishes."""
+        if not (events or self._first or (self.period_ns and t_ns >= self.next_ns)):
+            return False
+        if self.period_ns:
+            while self.next_ns <= t_ns:
+                self.next_ns += self.period_ns
+        self._first = False
+        return True
+
+
+def sim_seconds(stamp_ns, epoch_ns):
+    """Simulation seconds of a command's header stamp (`epoch_ns`: the wall-clock time of
+    simulation time 0 when stamps are wall time, else 0); a zero stamp means on receipt
+    and reads as 0.0."""
+    return 0.0 if stamp_ns == 0 else (stamp_ns - epoch_ns) * 1e-9
+
+
+__all__ = ['CameraSchedule', 'GroundTruthSchedule', 'Pacer', 'sim_seconds']

@@ -1,0 +1,119 @@
+"""MujocoWorld with real MuJoCo physics (world: mujoco; no mocks). The skill-driven tests
+(the skills' real plans run on this world) live in abp_bench/test/test_mujoco_skills.py:
+abp_bench depends on this package, not the other way round."""
+
+import cv2
+import numpy as np
+import pytest
+
+from abp_belief.cube import R_UP
+from abp_description.frames import rot_z
+from abp_description.kinematics import RobotKinematics, look_at_world
+from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
+from abp_sim_bridge.mujoco_scene import CubeSpec
+from abp_sim_bridge.mujoco_world import (  # also sets MUJOCO_GL=egl by default
+    MujocoSettings,
+    MujocoWorld,
+    discrete_state,
+)
+
+pytestmark = pytest.mark.timeout(120)
+
+FACE_TAGS = (0, 1, 2, 3, 4, 5)
+
+
+def make_world(kin, heavy_face=None, cube_x=0.40, cube_yaw=0.0, up_face=4, **changes):
+    """World with the robot at the origin looking at a cube at (cube_x, 0) standing on
+    body face `up_face` (MODEL.md's R_UP) turned by `cube_yaw` (rad)."""
+    cube = CubeSpec(position=(cube_x, 0.0, 0.05), rotation=rot_z(cube_yaw) @ R_UP[up_face],
+                    heavy_face=heavy_face)
+    q0, _ = look_at_world(kin, kin.neutral(), (0.0, 0.0, 0.0), cube.position)
+    settings = MujocoSettings(initial_positions=tuple(q0), **changes)
+    return MujocoWorld(cube, FACE_TAGS, settings, kin)
+
+
+@pytest.fixture(scope='module')
+def kin():
+    return RobotKinematics()
+
+
+def run(world, seconds):
+    for _ in range(int(round(seconds / world.dt))):
+        world.step()
+
+
+def test_physics_runs_at_500_hz_or_more(kin):
+    world = make_world(kin)
+    assert world.model.opt.timestep <= 0.002 + 1e-12
+    assert world.substeps * world.model.opt.timestep == pytest.approx(world.dt)
+
+
+def test_base_drives_under_cmd_vel_within_its_limits(kin):
+    world = make_world(kin, cube_x=1.5)
+    world.set_cmd_vel(0.2, 0.0)
+    for _ in range(5):  # keep the command alive for 1 s (cmd_vel_timeout 0.5 s)
+        run(world, 0.2)
+        world.set_cmd_vel(0.2, 0.0)
+    x, y, yaw = world.robot_pose()
+    # 0.2 s to reach 0.2 m/s at 1 m/s^2, then cruise: ~0.18 m in 1 s.
+    assert x == pytest.approx(0.18, abs=0.02)
+    assert abs(y) < 1e-3 and abs(yaw) < 1e-3
+    assert world.odometry_twist()[0] == pytest.approx(0.2, abs=0.01)
+    run(world, 1.0)  # the command times out: the base stops
+    assert abs(world.odometry_twist()[0]) < 1e-3
+    np.testing.assert_allclose(world.base_in_odom(), world.robot_pose(), atol=1e-9)
+    world.set_cmd_vel(0.0, 5.0)  # beyond the angular limit of 1.5 rad/s
+    run(world, 0.5)
+    assert world.odometry_twist()[1] == pytest.approx(1.5, abs=0.02)
+
+
+def test_odometry_noise_moves_the_true_base_only(kin):
+    world = make_world(kin, cube_x=1.5, orbit_odometry_noise=(0.05, 0.1))
+    world.set_cmd_vel(0.1, 0.0)
+    run(world, 1.0)
+    odom, true = world.base_in_odom(), world.robot_pose()
+    assert np.linalg.norm(odom - true) > 1e-3
+    assert any(e.effect == 'odometry error' for _, e in world.events)
+    run(world, 0.2)
+    np.testing.assert_allclose(world.base_in_odom(), odom, atol=1e-6)
+
+
+def test_joint_follows_a_trajectory(kin):
+    world = make_world(kin)
+    start = world.q[kin.joint_index('head_pan_joint')]
+    world.set_trajectory('head_controller', ['head_pan_joint'],
+                         [TrajectoryPoint(1.0, np.array([start + 0.5]))])
+    run(world, 0.5)
+    half = world.q[kin.joint_index('head_pan_joint')]
+    assert half == pytest.approx(start + 0.25, abs=0.02)
+    run(world, 1.0)
+    assert world.q[kin.joint_index('head_pan_joint')] == pytest.approx(start + 0.5, abs=0.005)
+
+
+@pytest.mark.parametrize('up_face, yaw_step', [(4, 4), (4, 5), (0, 4), (2, 0), (5, 3)])
+def test_discrete_state_matches_the_spawned_pose(kin, up_face, yaw_step):
+    # Robot at the origin facing +x, cube at +x: the view frame's x_V is world -x, so
+    # relative yaw = world yaw + 180 deg.
+    world = make_world(kin, up_face=up_face, cube_yaw=np.radians(45 * yaw_step - 180))
+    run(world, 0.2)
+    assert world.discrete_state() == (up_face, yaw_step)
+    assert discrete_state(world.display_cube().pose(), world.robot_pose()) == (up_face, yaw_step)
+
+
+def test_camera_image_shows_the_tags_the_state_predicts(kin):
+    world = make_world(kin)
+    img = world.render()
+    assert img.shape == (480, 640, 3) and img.dtype == np.uint8
+    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+    corners, ids, _ = detector.detectMarkers(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY))
+    # State 36: body +z up, body -x (face 1) faces the robot.
+    assert ids is not None and set(ids.ravel()) == {FACE_TAGS[4], FACE_TAGS[1]}
+    # The top tag's image-top edge points to body -x (flat_renderer's tag axes), here
+    # towards the robot: its first two corners (top-left, top-right) are lower in the image.
+    top = corners[list(ids.ravel()).index(FACE_TAGS[4])][0]
+    assert top[:2, 1].mean() > top[2:, 1].mean() + 20
+    # A snapshot renders the same frame later.
+    snap = world.snapshot()
+    run(world, 0.1)
+    assert np.array_equal(world.render(snap), img)
+    assert world.render(encoding='mono8').shape == (480, 640)

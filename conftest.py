@@ -19,11 +19,11 @@ import pytest
 # Chosen at import, before any test can initialise rclpy. Domain ids 1..101 keep
 # the default port mapping valid; the pid spreads concurrent sessions apart.
 _DOMAIN_ID = 1 + (os.getpid() + random.SystemRandom().randrange(101)) % 101
-os.environ["ROS_DOMAIN_ID"] = str(_DOMAIN_ID)
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.pop("ROS_LOCALHOST_ONLY", None)  # deprecated in Jazzy, conflicts with the above
-os.environ.setdefault("RMW_IMPLEMENTATION", "rmw_fastrtps_cpp")
-os.environ["PYTHONUNBUFFERED"] = "1"
+os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN_ID)
+os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy, conflicts with the above
+os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
+os.environ['PYTHONUNBUFFERED'] = '1'
 
 
 class ProcessGroup:
@@ -40,7 +40,7 @@ class ProcessGroup:
             stderr=subprocess.STDOUT,
             text=True,
             start_new_session=True,
-            env=kwargs.pop("env", os.environ.copy()),
+            env=kwargs.pop('env', os.environ.copy()),
             **kwargs,
         )
         self.processes.append(proc)
@@ -74,13 +74,13 @@ class ProcessGroup:
         Reads the pipe's file descriptor directly: a buffered readline could hold
         the awaited line in its buffer while select() reports the pipe idle.
         """
-        pending = self._unread.pop(proc.pid, "")
+        pending = self._unread.pop(proc.pid, '')
         lines = []
         deadline = time.monotonic() + timeout
         while True:
-            while "\n" in pending:
-                line, pending = pending.split("\n", 1)
-                lines.append(line + "\n")
+            while '\n' in pending:
+                line, pending = pending.split('\n', 1)
+                lines.append(line + '\n')
                 if text in line:
                     self._unread[proc.pid] = pending
                     return lines
@@ -91,7 +91,7 @@ class ProcessGroup:
                 chunk = os.read(proc.stdout.fileno(), 65536)
                 if not chunk:
                     break  # the process closed its output
-                pending += chunk.decode(errors="replace")
+                pending += chunk.decode(errors='replace')
             elif proc.poll() is not None:
                 break
         self._unread[proc.pid] = pending
@@ -102,8 +102,8 @@ class ProcessGroup:
     def output(self, proc):
         """All output of a finished (or stopped) process not yet read by wait_for_line."""
         if proc.stdout is None:
-            return ""
-        return self._unread.pop(proc.pid, "") + proc.stdout.read()
+            return ''
+        return self._unread.pop(proc.pid, '') + proc.stdout.read()
 
 
 @pytest.fixture
@@ -116,7 +116,7 @@ def ros_processes():
 @pytest.fixture
 def rclpy_context():
     """An rclpy context of this test only, on the session's isolated domain."""
-    rclpy = pytest.importorskip("rclpy")
+    rclpy = pytest.importorskip('rclpy')
     context = rclpy.context.Context()
     rclpy.init(context=context)
     yield context

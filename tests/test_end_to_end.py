@@ -20,16 +20,16 @@ from abp_belief.population import robot_set
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 SEED = 1
-MANUAL = {"PUSH", "LIFT", "FLIP"}
+MANUAL = {'PUSH', 'LIFT', 'FLIP'}
 
 
 def run_episode(tmp_path, object_index, extra=()):
-    result_file = tmp_path / f"result-{object_index}.json"
-    log_dir = tmp_path / f"logs-{object_index}"
+    result_file = tmp_path / f'result-{object_index}.json'
+    log_dir = tmp_path / f'logs-{object_index}'
     proc = subprocess.run(
-        [str(REPO / "scripts" / "start_graph.sh"), "--seed", str(SEED), "--object",
-         str(object_index), "--result-json", str(result_file), "--log-dir", str(log_dir),
-         "--timeout", "600", *extra],
+        [str(REPO / 'scripts' / 'start_graph.sh'), '--seed', str(SEED), '--object',
+         str(object_index), '--result-json', str(result_file), '--log-dir', str(log_dir),
+         '--timeout', '600', *extra],
         capture_output=True, text=True, timeout=900, start_new_session=True)
     trace = proc.stdout + proc.stderr
     assert result_file.exists(), trace
@@ -37,44 +37,44 @@ def run_episode(tmp_path, object_index, extra=()):
 
 
 def twin_with_mass(models, mass_name):
-    return next(i for i, name in enumerate(models.names) if name.endswith("/" + mass_name))
+    return next(i for i, name in enumerate(models.names) if name.endswith('/' + mass_name))
 
 
-@pytest.mark.parametrize("mass, namespace", [("u", "robot1"), ("m+z", ""), ("m+y", "")])
+@pytest.mark.parametrize('mass, namespace', [('u', 'robot1'), ('m+z', ''), ('m+y', '')])
 def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, mass, namespace):
     models = robot_set(seed=SEED)
-    if mass == "u":
+    if mass == 'u':
         index = next(i for i in range(models.num_models) if models.mass[i] == 0)
     else:
         index = twin_with_mass(models, mass)
     code, result, trace = run_episode(tmp_path, index,
-                                      ("--namespace", namespace) if namespace else ())
+                                      ('--namespace', namespace) if namespace else ())
     assert code == 0, trace
     if namespace:
-        assert f"graph under /{namespace}" in trace
-        planner_log = (tmp_path / f"logs-{index}" / "planner.log").read_text()
-        assert f"[{namespace}.planner]" in planner_log
-    assert result["ground_truth"] == models.names[index]
-    assert result["correct"] and result["object_id"] == models.names[index], trace
-    assert result["posterior"] >= 0.95
-    executed = [line.split()[2] for line in trace.splitlines() if line.startswith("action ")]
-    assert len(executed) == result["actions"]
-    if mass != "u":
+        assert f'graph under /{namespace}' in trace
+        planner_log = (tmp_path / f'logs-{index}' / 'planner.log').read_text()
+        assert f'[{namespace}.planner]' in planner_log
+    assert result['ground_truth'] == models.names[index]
+    assert result['correct'] and result['object_id'] == models.names[index], trace
+    assert result['posterior'] >= 0.95
+    executed = [line.split()[2] for line in trace.splitlines() if line.startswith('action ')]
+    assert len(executed) == result['actions']
+    if mass != 'u':
         # A twin is told apart only by a manual action.
         assert MANUAL & set(executed), trace
-    assert not graph_processes(), "start_graph.sh left processes behind"
+    assert not graph_processes(), 'start_graph.sh left processes behind'
 
 
 def graph_processes():
     """abp executables still running on this test session's ROS domain."""
     domain = f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}".encode()
     found = []
-    for proc in pathlib.Path("/proc").glob("[0-9]*"):
+    for proc in pathlib.Path('/proc').glob('[0-9]*'):
         try:
-            cmdline = (proc / "cmdline").read_bytes()
-            environ = (proc / "environ").read_bytes()
+            cmdline = (proc / 'cmdline').read_bytes()
+            environ = (proc / 'environ').read_bytes()
         except OSError:
             continue
-        if b"/install/abp_" in cmdline and domain in environ.split(b"\0"):
-            found.append(cmdline.replace(b"\0", b" ").decode(errors="replace"))
+        if b'/install/abp_' in cmdline and domain in environ.split(b'\0'):
+            found.append(cmdline.replace(b'\0', b' ').decode(errors='replace'))
     return found

@@ -13,13 +13,13 @@ import numpy as np
 from abp_description.frames import rot_z_deg
 
 # The action vocabulary (abp_msgs/ExecutedAction carries the same names as constants).
-ACTIONS = ("ORBIT_P45", "ORBIT_M45", "ORBIT_P90", "ORBIT_M90", "ORBIT_180", "PUSH", "LIFT", "FLIP")
+ACTIONS = ('ORBIT_P45', 'ORBIT_M45', 'ORBIT_P90', 'ORBIT_M90', 'ORBIT_180', 'PUSH', 'LIFT', 'FLIP')
 ACTION_INDEX = {name: i for i, name in enumerate(ACTIONS)}
-NOMINAL_DURATION_S = {"ORBIT_P45": 20.0, "ORBIT_M45": 20.0, "ORBIT_P90": 30.0, "ORBIT_M90": 30.0,
-                      "ORBIT_180": 50.0, "PUSH": 30.0, "LIFT": 45.0, "FLIP": 60.0}
+NOMINAL_DURATION_S = {'ORBIT_P45': 20.0, 'ORBIT_M45': 20.0, 'ORBIT_P90': 30.0, 'ORBIT_M90': 30.0,
+                      'ORBIT_180': 50.0, 'PUSH': 30.0, 'LIFT': 45.0, 'FLIP': 60.0}
 # Yaw change (in 45 deg steps) of each ORBIT action.
-ORBIT_STEPS = {"ORBIT_P45": 1, "ORBIT_M45": -1, "ORBIT_P90": 2, "ORBIT_M90": -2, "ORBIT_180": 4}
-MANUAL_ACTIONS = ("PUSH", "LIFT", "FLIP")
+ORBIT_STEPS = {'ORBIT_P45': 1, 'ORBIT_M45': -1, 'ORBIT_P90': 2, 'ORBIT_M90': -2, 'ORBIT_180': 4}
+MANUAL_ACTIONS = ('PUSH', 'LIFT', 'FLIP')
 
 STATES_PER_MODEL = 48            # state = 8 * up_face + yaw
 NUM_YAWS = 8
@@ -27,11 +27,11 @@ NUM_FACES = 6
 NUM_MASS_VARIANTS = 7            # mass index 0 = uniform, 1 + f = heavy body face f
 MIN_TAGS, MAX_TAGS = 6, 50       # ArUco DICT_4X4_50 holds 50 ids
 
-FACE_NAMES = ("+x", "-x", "+y", "-y", "+z", "-z")
+FACE_NAMES = ('+x', '-x', '+y', '-y', '+z', '-z')
 FACE_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]],
                         dtype=np.float64)
 OPPOSITE_FACE = np.array([1, 0, 3, 2, 5, 4], dtype=np.int64)
-MASS_NAMES = ("u",) + tuple("m" + name for name in FACE_NAMES)
+MASS_NAMES = ('u',) + tuple('m' + name for name in FACE_NAMES)
 
 _SQRT_HALF = float(np.sqrt(0.5))
 _TOL = 1e-6
@@ -42,7 +42,7 @@ def action_index(action) -> int:
     if isinstance(action, (int, np.integer)) and not isinstance(action, bool):
         if 0 <= int(action) < len(ACTIONS):
             return int(action)
-        raise ValueError(f"action index {action} out of range 0..{len(ACTIONS) - 1}")
+        raise ValueError(f'action index {action} out of range 0..{len(ACTIONS) - 1}')
     if isinstance(action, str) and action in ACTION_INDEX:
         return ACTION_INDEX[action]
     raise ValueError(f"unknown action {action!r}; expected one of {', '.join(ACTIONS)}")
@@ -51,10 +51,10 @@ def action_index(action) -> int:
 def check_n_tags(n_tags) -> int:
     """The tag-set size as int, or ValueError naming the supported range."""
     if isinstance(n_tags, bool) or not isinstance(n_tags, (int, np.integer)):
-        raise ValueError(f"n_tags must be an integer in {MIN_TAGS}..{MAX_TAGS}, got {n_tags!r}")
+        raise ValueError(f'n_tags must be an integer in {MIN_TAGS}..{MAX_TAGS}, got {n_tags!r}')
     if not MIN_TAGS <= int(n_tags) <= MAX_TAGS:
-        raise ValueError(f"n_tags must be in {MIN_TAGS}..{MAX_TAGS} (a cube needs 6 distinct tags; "
-                         f"DICT_4X4_50 has 50), got {n_tags}")
+        raise ValueError(f'n_tags must be in {MIN_TAGS}..{MAX_TAGS} (a cube needs 6 distinct tags; '
+                         f'DICT_4X4_50 has 50), got {n_tags}')
     return int(n_tags)
 
 
@@ -101,7 +101,7 @@ STATE_ROTATIONS = np.array([rot_z_deg(45.0 * (s % NUM_YAWS)) @ R_UP[s // NUM_YAW
 
 def _face_towards(rotations: np.ndarray, direction) -> np.ndarray:
     """Per rotation, the body face whose normal maps onto `direction` (-1 if none)."""
-    normals_v = np.einsum("rij,fj->rfi", rotations, FACE_NORMALS)     # (R, 6, 3)
+    normals_v = np.einsum('rij,fj->rfi', rotations, FACE_NORMALS)     # (R, 6, 3)
     hit = np.linalg.norm(normals_v - np.asarray(direction, float), axis=2) < _TOL
     return np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
 
@@ -135,7 +135,7 @@ def state_of(up_face: int, yaw: int) -> int:
 
 def _check_state(state) -> int:
     if not 0 <= int(state) < STATES_PER_MODEL:
-        raise ValueError(f"state {state} out of range 0..{STATES_PER_MODEL - 1}")
+        raise ValueError(f'state {state} out of range 0..{STATES_PER_MODEL - 1}')
     return int(state)
 
 
@@ -149,7 +149,7 @@ def state_from_rotation(rotation) -> int:
     err = np.linalg.norm(STATE_ROTATIONS - np.asarray(rotation, float), axis=(1, 2))
     best = int(np.argmin(err))
     if err[best] > 1e-6:
-        raise ValueError("rotation is not one of the 48 discrete cube states")
+        raise ValueError('rotation is not one of the 48 discrete cube states')
     return best
 
 
@@ -167,7 +167,7 @@ def mass_direction(mass_index, state) -> np.ndarray | None:
     """Direction in V of the heavy face (None for uniform mass)."""
     m = int(mass_index)
     if not 0 <= m < NUM_MASS_VARIANTS:
-        raise ValueError(f"mass index {m} out of range 0..{NUM_MASS_VARIANTS - 1}")
+        raise ValueError(f'mass index {m} out of range 0..{NUM_MASS_VARIANTS - 1}')
     if m == 0:
         return None
     return STATE_ROTATIONS[_check_state(state)] @ FACE_NORMALS[m - 1]
@@ -189,14 +189,14 @@ def nominal_rotation(action, mass_index, state) -> np.ndarray:
     if STATE_YAW[s] % 2 == 1:
         return np.eye(3)
     d = mass_direction(mass_index, s)
-    if name == "PUSH":
+    if name == 'PUSH':
         # The heavy side drags, the light side advances.
         if _is(d, [0, 1, 0]):
             return rot_z_deg(-45.0)
         if _is(d, [0, -1, 0]):
             return rot_z_deg(45.0)
         return np.eye(3)
-    if name == "LIFT":
+    if name == 'LIFT':
         if _is(d, [0, 0, 1]):
             return rot_y(180.0)
         if _is(d, [1, 0, 0]):

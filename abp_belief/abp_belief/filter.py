@@ -31,11 +31,11 @@ class BeliefFilter:
         else:
             prior_models = np.asarray(prior, dtype=np.float64).reshape(-1)
             if prior_models.shape != (m,):
-                raise ValueError(f"prior must have shape ({m},) (one weight per model), "
-                                 f"got {np.shape(prior)}")
+                raise ValueError(f'prior must have shape ({m},) (one weight per model), '
+                                 f'got {np.shape(prior)}')
             if not np.isfinite(prior_models).all() or prior_models.min() < 0 \
                     or prior_models.sum() <= 0:
-                raise ValueError("prior must be finite, >= 0 and not all zero")
+                raise ValueError('prior must be finite, >= 0 and not all zero')
             prior_models = prior_models / prior_models.sum()
         # Unknown initial state: the prior is spread evenly over each model's 48 states.
         self._prior = np.repeat(prior_models / STATES_PER_MODEL, STATES_PER_MODEL)
@@ -64,8 +64,8 @@ class BeliefFilter:
         posterior = lik * self.belief
         total = posterior.sum()
         if not (np.isfinite(total) and total > 0.0):
-            raise BeliefUpdateError(f"observation {tuple(z)} has total likelihood {total} "
-                                    "under the current belief; belief left unchanged")
+            raise BeliefUpdateError(f'observation {tuple(z)} has total likelihood {total} '
+                                    'under the current belief; belief left unchanged')
         posterior /= total
         self.belief = posterior
         return float(total)

@@ -16,7 +16,7 @@ from .modelset import TransitionParams
 from .observation import ObservationParams
 
 # Parameters that define the model set: changing them needs a restart.
-MODEL_SET_PARAMETERS = ("model_file", "model_set", "model_set_size", "n_tags", "seed") + tuple(
+MODEL_SET_PARAMETERS = ('model_file', 'model_set', 'model_set_size', 'n_tags', 'seed') + tuple(
     f.name for f in fields(ObservationParams) + fields(TransitionParams))
 
 
@@ -34,16 +34,16 @@ def declare_model_set_parameters(node):
         node.declare_parameter(name, default, ParameterDescriptor(
             description=description, read_only=True, **ranges))
 
-    declare("model_file", "", "Model-set file written by `models --out`; empty = generate "
-            "from model_set/model_set_size/n_tags/seed.")
-    declare("model_set", "robot", "Generated model set: robot (18 visual cubes + 2x6 "
-            "eccentric twins), random (model_set_size visual cubes, uniform mass), full "
-            "(every visual cube x 7 mass variants), visual (every visual cube, uniform mass).")
-    declare("model_set_size", 30, "Number of visual cubes for model_set=random.",
+    declare('model_file', '', 'Model-set file written by `models --out`; empty = generate '
+            'from model_set/model_set_size/n_tags/seed.')
+    declare('model_set', 'robot', 'Generated model set: robot (18 visual cubes + 2x6 '
+            'eccentric twins), random (model_set_size visual cubes, uniform mass), full '
+            '(every visual cube x 7 mass variants), visual (every visual cube, uniform mass).')
+    declare('model_set_size', 30, 'Number of visual cubes for model_set=random.',
             integer_range=integer_range(1, 100000))
-    declare("n_tags", 7, "Number of distinct tags (ArUco ids 0..n_tags-1).",
+    declare('n_tags', 7, 'Number of distinct tags (ArUco ids 0..n_tags-1).',
             integer_range=integer_range(6, 50))
-    declare("seed", 0, "Seed for the random and robot model sets.",
+    declare('seed', 0, 'Seed for the random and robot model sets.',
             integer_range=integer_range(0, 2**31 - 1))
     for field in fields(ObservationParams) + fields(TransitionParams):
         declare(field.name, float(field.default),
@@ -60,8 +60,8 @@ def load_model_set(node):
         return node.get_parameter(name).value
 
     return population.model_set_from_config(
-        model_set=param("model_set"), model_set_size=param("model_set_size"),
-        n_tags=param("n_tags"), seed=param("seed"), model_file=param("model_file"),
+        model_set=param('model_set'), model_set_size=param('model_set_size'),
+        n_tags=param('n_tags'), seed=param('seed'), model_file=param('model_file'),
         observation_params=ObservationParams(
             **{f.name: param(f.name) for f in fields(ObservationParams)}),
         transition_params=TransitionParams(

@@ -18,27 +18,27 @@ import numpy as np
 from . import model_file, population
 from .cube import MAX_TAGS, MIN_TAGS
 
-SETS = ("full", "random", "robot", "visual")
+SETS = ('full', 'random', 'robot', 'visual')
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="models", description="Build or inspect ARcube model sets (Aspect Transition "
-        "Graphs) and print a summary.",
+        prog='models', description='Build or inspect ARcube model sets (Aspect Transition '
+        'Graphs) and print a summary.',
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    parser.add_argument("--tags", type=int, default=7, metavar="N",
-                        help=f"size of the tag set ({MIN_TAGS}..{MAX_TAGS}, default 7)")
-    parser.add_argument("--set", choices=SETS, default=None, dest="which",
+    parser.add_argument('--tags', type=int, default=7, metavar='N',
+                        help=f'size of the tag set ({MIN_TAGS}..{MAX_TAGS}, default 7)')
+    parser.add_argument('--set', choices=SETS, default=None, dest='which',
                         help="full: every visual cube x 7 masses; visual: every visual cube, "
                              "uniform; random: --size random visual cubes, uniform; robot: the "
                              "paper's 30-model uBot-6 set (default full)")
-    parser.add_argument("--size", type=int, default=None, metavar="M",
-                        help="number of visual cubes for --set random (default 30)")
-    parser.add_argument("--seed", type=int, default=0, metavar="S",
-                        help="random seed for --set random/robot (default 0)")
-    parser.add_argument("--out", metavar="FILE", help="save the model set to FILE (.npz)")
-    parser.add_argument("--load", metavar="FILE", help="load a model set from FILE instead")
-    parser.add_argument("--json", action="store_true", help="print a compact JSON summary")
+    parser.add_argument('--size', type=int, default=None, metavar='M',
+                        help='number of visual cubes for --set random (default 30)')
+    parser.add_argument('--seed', type=int, default=0, metavar='S',
+                        help='random seed for --set random/robot (default 0)')
+    parser.add_argument('--out', metavar='FILE', help='save the model set to FILE (.npz)')
+    parser.add_argument('--load', metavar='FILE', help='load a model set from FILE instead')
+    parser.add_argument('--json', action='store_true', help='print a compact JSON summary')
     return parser
 
 
@@ -46,19 +46,19 @@ def summarize(model_set, description: str) -> dict:
     per_aspect = model_set.models_per_aspect()
     histogram = Counter(per_aspect.tolist())
     return {
-        "set": description,
-        "n_tags": model_set.n_tags,
-        "models": model_set.num_models,
-        "visual_cubes": model_set.num_visual_cubes,
-        "eccentric_models": int(np.count_nonzero(model_set.mass)),
-        "aspect_nodes": model_set.num_nodes,
-        "distinct_aspects": model_set.num_aspects,
+        'set': description,
+        'n_tags': model_set.n_tags,
+        'models': model_set.num_models,
+        'visual_cubes': model_set.num_visual_cubes,
+        'eccentric_models': int(np.count_nonzero(model_set.mass)),
+        'aspect_nodes': model_set.num_nodes,
+        'distinct_aspects': model_set.num_aspects,
         # For each aspect: number of models showing it in >= 1 state, i.e. how many
         # models a single first observation of it leaves possible.
-        "models_per_aspect": {"min": int(per_aspect.min()), "max": int(per_aspect.max()),
-                              "mean": round(float(per_aspect.mean()), 3)},
-        "models_per_aspect_histogram": {str(k): histogram[k] for k in sorted(histogram)},
-        "transition_nnz": {name: int(t.nnz) for name, t in model_set.transitions.items()},
+        'models_per_aspect': {'min': int(per_aspect.min()), 'max': int(per_aspect.max()),
+                              'mean': round(float(per_aspect.mean()), 3)},
+        'models_per_aspect_histogram': {str(k): histogram[k] for k in sorted(histogram)},
+        'transition_nnz': {name: int(t.nnz) for name, t in model_set.transitions.items()},
     }
 
 
@@ -70,18 +70,18 @@ def _print_readable(summary: dict, out):
     print(f"visual cubes     : {summary['visual_cubes']}", file=out)
     print(f"aspect nodes     : {summary['aspect_nodes']}", file=out)
     print(f"distinct aspects : {summary['distinct_aspects']}", file=out)
-    mpa = summary["models_per_aspect"]
+    mpa = summary['models_per_aspect']
     print(f"models sharing one first observation: min {mpa['min']}, mean {mpa['mean']}, "
           f"max {mpa['max']}", file=out)
-    print("  models  aspects", file=out)
-    for k, count in summary["models_per_aspect_histogram"].items():
-        print(f"  {int(k):6d}  {count:7d}", file=out)
+    print('  models  aspects', file=out)
+    for k, count in summary['models_per_aspect_histogram'].items():
+        print(f'  {int(k):6d}  {count:7d}', file=out)
 
 
 def _usage_error(parser: argparse.ArgumentParser, message: str) -> int:
     """Like parser.error (usage + message, status 2) but returned, not raised."""
     parser.print_usage(sys.stderr)
-    print(f"{parser.prog}: error: {message}", file=sys.stderr)
+    print(f'{parser.prog}: error: {message}', file=sys.stderr)
     return 2
 
 
@@ -93,27 +93,27 @@ def main(argv=None) -> int:
         return int(exc.code or 0)
 
     if args.load and args.which:
-        return _usage_error(parser, "--load and --set are mutually exclusive")
-    if args.size is not None and args.which != "random":
-        return _usage_error(parser, "--size only applies to --set random")
-    which = args.which or "full"
+        return _usage_error(parser, '--load and --set are mutually exclusive')
+    if args.size is not None and args.which != 'random':
+        return _usage_error(parser, '--size only applies to --set random')
+    which = args.which or 'full'
     try:
         if args.load:
             model_set = model_file.load(args.load)
-            description = f"loaded from {args.load}"
-        elif which == "full":
+            description = f'loaded from {args.load}'
+        elif which == 'full':
             model_set = population.full_set(args.tags)
-            description = "full"
-        elif which == "visual":
+            description = 'full'
+        elif which == 'visual':
             model_set = population.visual_set(args.tags)
-            description = "visual"
-        elif which == "random":
+            description = 'visual'
+        elif which == 'random':
             size = 30 if args.size is None else args.size
             model_set = population.random_visual_subset(size, n_tags=args.tags, seed=args.seed)
-            description = f"random (size {size}, seed {args.seed})"
+            description = f'random (size {size}, seed {args.seed})'
         else:
             model_set = population.robot_set(seed=args.seed, n_tags=args.tags)
-            description = f"robot (seed {args.seed})"
+            description = f'robot (seed {args.seed})'
     except (ValueError, model_file.ModelFileError) as exc:
         return _usage_error(parser, str(exc))
 
@@ -121,21 +121,21 @@ def main(argv=None) -> int:
         try:
             model_file.save(model_set, args.out)
         except OSError as exc:
-            print(f"{parser.prog}: error: cannot write {args.out}: {exc.strerror or exc}",
+            print(f'{parser.prog}: error: cannot write {args.out}: {exc.strerror or exc}',
                   file=sys.stderr)
             return 1
 
     summary = summarize(model_set, description)
     if args.out:
-        summary["saved_to"] = args.out
+        summary['saved_to'] = args.out
     if args.json:
-        print(json.dumps(summary, separators=(",", ":")))
+        print(json.dumps(summary, separators=(',', ':')))
     else:
         _print_readable(summary, sys.stdout)
         if args.out:
-            print(f"saved to         : {args.out}")
+            print(f'saved to         : {args.out}')
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -19,8 +19,8 @@ from . import cube
 from .cube import ACTIONS, NUM_MASS_VARIANTS, STATES_PER_MODEL
 from .observation import ObservationModel, ObservationParams
 
-__all__ = ["TransitionParams", "ObservationParams", "ModelSet", "PairGaussians",
-           "build_outcome_tables", "MAX_NODES"]
+__all__ = ['TransitionParams', 'ObservationParams', 'ModelSet', 'PairGaussians',
+           'build_outcome_tables', 'MAX_NODES']
 
 MAX_OUTCOMES = 3            # K: nominal + two neighbours at most
 MAX_NODES = 4_000_000       # ~1 GB of transition matrices; larger sets need pruning first
@@ -37,9 +37,9 @@ class TransitionParams:
     def __post_init__(self):
         for name, value in asdict(self).items():
             if not (isinstance(value, (int, float)) and 0.0 <= float(value) < 1.0):
-                raise ValueError(f"TransitionParams.{name} must be in [0, 1), got {value!r}")
+                raise ValueError(f'TransitionParams.{name} must be in [0, 1), got {value!r}')
         if self.p_fail_push + self.p_push_neighbour >= 1.0:
-            raise ValueError("TransitionParams: p_fail_push + p_push_neighbour must be < 1")
+            raise ValueError('TransitionParams: p_fail_push + p_push_neighbour must be < 1')
 
 
 class PairGaussians(NamedTuple):
@@ -72,7 +72,7 @@ def build_outcome_tables(params: TransitionParams | None = None):
     states = np.empty(shape, dtype=np.int16)
     probs = np.zeros(shape, dtype=np.float64)
     states[:] = np.arange(STATES_PER_MODEL, dtype=np.int16)[None, None, :, None]
-    fail = {"PUSH": p.p_fail_push, "LIFT": p.p_fail_lift, "FLIP": p.p_fail_flip}
+    fail = {'PUSH': p.p_fail_push, 'LIFT': p.p_fail_lift, 'FLIP': p.p_fail_flip}
     eye = np.eye(3)
     for a, name in enumerate(ACTIONS):
         for m in range(NUM_MASS_VARIANTS):
@@ -88,7 +88,7 @@ def build_outcome_tables(params: TransitionParams | None = None):
                                 (rot_z_deg(45.0 * (k - 1)), p.p_orbit_slip / 2)]
                 elif cube.STATE_YAW[s] % 2 == 1:
                     outcomes = [(eye, 1.0)]                            # no face contact
-                elif name == "PUSH":
+                elif name == 'PUSH':
                     nb = p.p_push_neighbour
                     if np.allclose(q, eye):                            # slides
                         outcomes = [(eye, 1.0 - nb), (rot_z_deg(45.0), nb / 2),
@@ -117,7 +117,7 @@ def _default_outcome_tables(params: TransitionParams):
 
 
 def model_name(faces_row, mass_index) -> str:
-    return "c" + "-".join(str(int(t)) for t in faces_row) + "/" + cube.MASS_NAMES[int(mass_index)]
+    return 'c' + '-'.join(str(int(t)) for t in faces_row) + '/' + cube.MASS_NAMES[int(mass_index)]
 
 
 class ModelSet:
@@ -136,22 +136,22 @@ class ModelSet:
         faces = np.array(faces, dtype=np.int64, copy=True)
         mass = np.array(mass, dtype=np.int64, copy=True).reshape(-1)
         if faces.ndim != 2 or faces.shape[1] != 6 or faces.shape[0] < 1:
-            raise ValueError(f"faces must have shape (M >= 1, 6), got {faces.shape}")
+            raise ValueError(f'faces must have shape (M >= 1, 6), got {faces.shape}')
         if mass.shape != (faces.shape[0],):
-            raise ValueError(f"mass must have shape ({faces.shape[0]},), got {mass.shape}")
+            raise ValueError(f'mass must have shape ({faces.shape[0]},), got {mass.shape}')
         if faces.min() < 0 or faces.max() >= self.n_tags:
-            raise ValueError(f"tag ids must be in 0..{self.n_tags - 1}")
+            raise ValueError(f'tag ids must be in 0..{self.n_tags - 1}')
         if (np.sort(faces, axis=1)[:, 1:] == np.sort(faces, axis=1)[:, :-1]).any():
-            raise ValueError("each cube needs 6 distinct tags")
+            raise ValueError('each cube needs 6 distinct tags')
         if mass.min() < 0 or mass.max() >= NUM_MASS_VARIANTS:
-            raise ValueError(f"mass indices must be in 0..{NUM_MASS_VARIANTS - 1}")
+            raise ValueError(f'mass indices must be in 0..{NUM_MASS_VARIANTS - 1}')
         if faces.shape[0] * STATES_PER_MODEL > MAX_NODES:
-            raise ValueError(f"{faces.shape[0]} models = {faces.shape[0] * STATES_PER_MODEL} "
-                             f"nodes exceeds MAX_NODES = {MAX_NODES}; use a subset")
+            raise ValueError(f'{faces.shape[0]} models = {faces.shape[0] * STATES_PER_MODEL} '
+                             f'nodes exceeds MAX_NODES = {MAX_NODES}; use a subset')
         if not (np.isfinite(cube_size) and cube_size > 0):
-            raise ValueError(f"cube_size must be > 0 m, got {cube_size}")
+            raise ValueError(f'cube_size must be > 0 m, got {cube_size}')
         if not (np.isfinite(feature_sigma) and feature_sigma > 0):
-            raise ValueError(f"feature_sigma must be > 0 m, got {feature_sigma}")
+            raise ValueError(f'feature_sigma must be > 0 m, got {feature_sigma}')
         self.cube_size = float(cube_size)
         self.feature_sigma = float(feature_sigma)
         self.transition_params = transition_params or TransitionParams()
@@ -167,18 +167,18 @@ class ModelSet:
         codes = (canon * (self.n_tags ** np.arange(5, -1, -1, dtype=np.int64))).sum(axis=1)
         _, first, inverse = np.unique(codes, return_index=True, return_inverse=True)
         rank = np.empty(first.size, dtype=np.int32)
-        rank[np.argsort(first, kind="stable")] = np.arange(first.size, dtype=np.int32)
+        rank[np.argsort(first, kind='stable')] = np.arange(first.size, dtype=np.int32)
         self.visual_id = rank[inverse.reshape(-1)]
         self.num_visual_cubes = int(first.size)
         model_codes = codes * NUM_MASS_VARIANTS + mass
         if np.unique(model_codes).size != self.num_models:
-            raise ValueError("duplicate models (same visual cube and mass variant)")
+            raise ValueError('duplicate models (same visual cube and mass variant)')
 
         if names is None:
             names = [model_name(f, m) for f, m in zip(self.faces, self.mass)]
         self.names = [str(n) for n in names]
         if len(self.names) != self.num_models or len(set(self.names)) != self.num_models:
-            raise ValueError("names must be unique, one per model")
+            raise ValueError('names must be unique, one per model')
 
         self._build_aspects()
         self.observation = ObservationModel(self.aspects, self.n_tags, self.observation_params)
@@ -217,15 +217,15 @@ class ModelSet:
             if states.ndim != 4 or states.shape[:3] != (len(ACTIONS), NUM_MASS_VARIANTS,
                                                         STATES_PER_MODEL) \
                     or probs.shape != states.shape:
-                raise ValueError("outcome tables must both have shape "
-                                 f"({len(ACTIONS)}, {NUM_MASS_VARIANTS}, {STATES_PER_MODEL}, K), "
-                                 f"got {states.shape} and {probs.shape}")
+                raise ValueError('outcome tables must both have shape '
+                                 f'({len(ACTIONS)}, {NUM_MASS_VARIANTS}, {STATES_PER_MODEL}, K), '
+                                 f'got {states.shape} and {probs.shape}')
             if states.min() < 0 or states.max() >= STATES_PER_MODEL:
-                raise ValueError("outcome_states must be in 0..47")
+                raise ValueError('outcome_states must be in 0..47')
             if not np.isfinite(probs).all() or probs.min() < 0 \
                     or not np.allclose(probs.sum(axis=3), 1.0, atol=1e-9):
-                raise ValueError("outcome_probs must be >= 0 and sum to 1 per "
-                                 "(action, mass, state)")
+                raise ValueError('outcome_probs must be >= 0 and sum to 1 per '
+                                 '(action, mass, state)')
             states = states.astype(np.int16)
             probs = probs.astype(np.float64)
         self.outcome_states = states
@@ -311,7 +311,7 @@ class ModelSet:
     def subset(self, model_indices) -> "ModelSet":
         idx = np.asarray(model_indices, dtype=np.int64).reshape(-1)
         if idx.size == 0 or idx.min() < -self.num_models or idx.max() >= self.num_models:
-            raise ValueError("model_indices must be a non-empty list of valid model indices")
+            raise ValueError('model_indices must be a non-empty list of valid model indices')
         return ModelSet(self.faces[idx], self.mass[idx], self.n_tags,
                         names=[self.names[i] for i in idx], cube_size=self.cube_size,
                         feature_sigma=self.feature_sigma,
@@ -320,6 +320,6 @@ class ModelSet:
                         outcome_tables=(self.outcome_states, self.outcome_probs))
 
     def __repr__(self) -> str:
-        return (f"ModelSet(n_tags={self.n_tags}, models={self.num_models}, "
-                f"visual_cubes={self.num_visual_cubes}, nodes={self.num_nodes}, "
-                f"aspects={self.num_aspects})")
+        return (f'ModelSet(n_tags={self.n_tags}, models={self.num_models}, '
+                f'visual_cubes={self.num_visual_cubes}, nodes={self.num_nodes}, '
+                f'aspects={self.num_aspects})')

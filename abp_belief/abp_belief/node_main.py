@@ -22,7 +22,7 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
         node = make_node()
     except (ValueError, rclpy.exceptions.InvalidParameterValueException,
             *config_errors) as error:
-        print(f"[{name}] configuration error: {error}", file=sys.stderr)
+        print(f'[{name}] configuration error: {error}', file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     executor = make_executor()

@@ -17,14 +17,14 @@ class ObservationParams:
     p_type: float = 0.01        # the 2/3-feature geometry is misread
 
     def __post_init__(self):
-        for name in ("p_miss", "p_false", "p_type"):
+        for name in ('p_miss', 'p_false', 'p_type'):
             value = getattr(self, name)
             # Strictly positive: a hard zero would make one bad observation unrecoverable.
             if not (isinstance(value, (int, float)) and 0.0 < float(value) < 1.0):
-                raise ValueError(f"ObservationParams.{name} must be in (0, 1), got {value!r}")
+                raise ValueError(f'ObservationParams.{name} must be in (0, 1), got {value!r}')
         if self.p_miss + self.p_false >= 1.0:
-            raise ValueError("ObservationParams: p_miss + p_false must be < 1, got "
-                             f"{self.p_miss} + {self.p_false}")
+            raise ValueError('ObservationParams: p_miss + p_false must be < 1, got '
+                             f'{self.p_miss} + {self.p_false}')
 
 
 class ObservationModel:
@@ -36,7 +36,7 @@ class ObservationModel:
     def __init__(self, aspects, n_tags: int, params: ObservationParams | None = None):
         self.aspects = np.asarray(aspects, dtype=np.int16)
         if self.aspects.ndim != 2 or self.aspects.shape[1] != 4:
-            raise ValueError(f"aspects must have shape (A, 4), got {self.aspects.shape}")
+            raise ValueError(f'aspects must have shape (A, 4), got {self.aspects.shape}')
         self.n_tags = int(n_tags)
         self.params = params if params is not None else ObservationParams()
         p = self.params
@@ -88,19 +88,19 @@ class ObservationModel:
         try:
             values = [int(v) for v in z]
         except (TypeError, ValueError):
-            raise ValueError(f"observation must be a tuple of ints (type, s0, s1, s2), got {z!r}")
+            raise ValueError(f'observation must be a tuple of ints (type, s0, s1, s2), got {z!r}')
         if len(values) == 3 and values[0] == 2:
             values.append(-1)
         if len(values) != 4:
-            raise ValueError(f"observation must have 4 entries (type, s0, s1, s2), got {z!r}")
+            raise ValueError(f'observation must have 4 entries (type, s0, s1, s2), got {z!r}')
         z_type = values[0]
         if z_type not in (2, 3):
-            raise ValueError(f"observation type must be 2 or 3, got {z_type} in {z!r}")
+            raise ValueError(f'observation type must be 2 or 3, got {z_type} in {z!r}')
         for v in values[1:1 + z_type]:
             if not -1 <= v < self.n_tags:
-                raise ValueError(f"observation {z!r}: tag {v} out of range -1..{self.n_tags - 1}")
+                raise ValueError(f'observation {z!r}: tag {v} out of range -1..{self.n_tags - 1}')
         if z_type == 2 and values[3] != -1:
-            raise ValueError(f"type-2 observation {z!r} must have s2 = -1")
+            raise ValueError(f'type-2 observation {z!r} must have s2 = -1')
         return tuple(values)
 
     def likelihood(self, z) -> np.ndarray:
@@ -127,7 +127,7 @@ class ObservationModel:
         """A noisy observation of aspect `aspect_row`, drawn exactly from p(z | x)."""
         row = int(aspect_row)
         if not 0 <= row < self.num_aspects:
-            raise ValueError(f"aspect row {row} out of range 0..{self.num_aspects - 1}")
+            raise ValueError(f'aspect row {row} out of range 0..{self.num_aspects - 1}')
         x_type = int(self._types[row])
         if rng.random() < self.params.p_type:
             z_type = 5 - x_type                                        # 2 <-> 3

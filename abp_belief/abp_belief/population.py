@@ -49,8 +49,8 @@ def visual_cubes(n_tags) -> np.ndarray:
     n = check_n_tags(n_tags)
     count = num_visual_cubes(n)
     if count > MAX_ENUMERATED_CUBES:
-        raise ValueError(f"{count} visual cubes for n_tags={n} is too many to enumerate "
-                         f"(limit {MAX_ENUMERATED_CUBES}); use random_visual_subset")
+        raise ValueError(f'{count} visual cubes for n_tags={n} is too many to enumerate '
+                         f'(limit {MAX_ENUMERATED_CUBES}); use random_visual_subset')
     subsets = np.array(list(itertools.combinations(range(n), 6)), dtype=np.int16)
     cubes = subsets[:, _rank_patterns()].reshape(-1, 6)
     return _sort_rows(cubes)
@@ -61,8 +61,8 @@ def _random_visual_faces(size, n_tags, rng: np.random.Generator) -> np.ndarray:
     n = check_n_tags(n_tags)
     count = num_visual_cubes(n)
     if isinstance(size, bool) or not isinstance(size, (int, np.integer)) or not 1 <= size <= count:
-        raise ValueError(f"size must be an integer in 1..{count} (visual cubes for "
-                         f"n_tags={n}), got {size!r}")
+        raise ValueError(f'size must be an integer in 1..{count} (visual cubes for '
+                         f'n_tags={n}), got {size!r}')
     size = int(size)
     if count <= MAX_ENUMERATED_CUBES:
         chosen = np.sort(rng.choice(count, size=size, replace=False))
@@ -125,11 +125,11 @@ def robot_set(seed=0, n_tags=7, **model_kwargs) -> ModelSet:
     return ModelSet(faces[rows], masses, n_tags, **model_kwargs)
 
 
-MODEL_SETS = ("robot", "random", "full", "visual")
+MODEL_SETS = ('robot', 'random', 'full', 'visual')
 
 
-def model_set_from_config(model_set="robot", model_set_size=30, n_tags=7, seed=0,
-                          model_file="", **model_kwargs) -> ModelSet:
+def model_set_from_config(model_set='robot', model_set_size=30, n_tags=7, seed=0,
+                          model_file='', **model_kwargs) -> ModelSet:
     """The model set every node builds from the same parameters (belief, planner,
     aspect matcher, sim bridge): a file when `model_file` is set, else a generated set.
 
@@ -138,13 +138,13 @@ def model_set_from_config(model_set="robot", model_set_size=30, n_tags=7, seed=0
     if model_file:
         from .model_file import load  # model_file imports modelset only: no cycle
         return load(model_file)
-    if model_set == "robot":
+    if model_set == 'robot':
         return robot_set(seed=seed, n_tags=n_tags, **model_kwargs)
-    if model_set == "random":
+    if model_set == 'random':
         return random_visual_subset(model_set_size, n_tags=n_tags, seed=seed, **model_kwargs)
-    if model_set == "full":
+    if model_set == 'full':
         return full_set(n_tags=n_tags, **model_kwargs)
-    if model_set == "visual":
+    if model_set == 'visual':
         return visual_set(n_tags=n_tags, **model_kwargs)
     raise ValueError(f"parameter model_set must be one of {', '.join(MODEL_SETS)}, "
                      f"got {model_set!r}")

@@ -7,8 +7,8 @@ import subprocess
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
@@ -29,8 +29,8 @@ SEED = 3
 
 
 def belief_executable():
-    prefix = ament_index.get_package_prefix("abp_belief")
-    return os.path.join(prefix, "lib", "abp_belief", "belief")
+    prefix = ament_index.get_package_prefix('abp_belief')
+    return os.path.join(prefix, 'lib', 'abp_belief', 'belief')
 
 
 def observation_msg(z):
@@ -40,13 +40,13 @@ def observation_msg(z):
 
 @pytest.fixture
 def graph(ros_processes, rclpy_context):
-    proc = ros_processes.start([belief_executable(), "--ros-args", "-p", "model_set:=robot",
-                                "-p", f"seed:={SEED}", "-p", "top_k:=30"])
-    node = rclpy.create_node("belief_tester", context=rclpy_context)
+    proc = ros_processes.start([belief_executable(), '--ros-args', '-p', 'model_set:=robot',
+                                '-p', f'seed:={SEED}', '-p', 'top_k:=30'])
+    node = rclpy.create_node('belief_tester', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     beliefs = []
-    node.create_subscription(Belief, "/abp/belief", beliefs.append, LATCHED)
+    node.create_subscription(Belief, '/abp/belief', beliefs.append, LATCHED)
     yield proc, node, executor, beliefs
     executor.shutdown()
     node.destroy_node()
@@ -59,22 +59,22 @@ def marginal_of(msg, names):
 
 def test_observation_and_action_update_the_published_belief(graph, spin):
     proc, node, executor, beliefs = graph
-    assert spin(executor, lambda: beliefs, 30), "no initial (latched) belief"
+    assert spin(executor, lambda: beliefs, 30), 'no initial (latched) belief'
     models = robot_set(seed=SEED)
     reference = BeliefFilter(models)
     initial = beliefs[-1]
     assert initial.step == 0 and initial.total_models == models.num_models == 30
     assert initial.entropy == pytest.approx(np.log2(30))
 
-    obs_pub = node.create_publisher(AspectObservation, "/abp/aspect_observation", RELIABLE)
-    act_pub = node.create_publisher(ExecutedAction, "/abp/executed_action", RELIABLE)
+    obs_pub = node.create_publisher(AspectObservation, '/abp/aspect_observation', RELIABLE)
+    act_pub = node.create_publisher(ExecutedAction, '/abp/executed_action', RELIABLE)
     assert spin(executor, lambda: obs_pub.get_subscription_count() > 0
                 and act_pub.get_subscription_count() > 0, 20)
 
     true_model = 7
     z1 = models.aspect_key(models.node_aspect[true_model * STATES_PER_MODEL + 1])
     obs_pub.publish(observation_msg(z1))
-    assert spin(executor, lambda: beliefs[-1].step == 1, 10), "observation not applied"
+    assert spin(executor, lambda: beliefs[-1].step == 1, 10), 'observation not applied'
     reference.correct(z1)
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
                                reference.object_marginal(), atol=1e-12)
@@ -96,8 +96,8 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     orbit = ExecutedAction(action=ExecutedAction.ORBIT_P90, success=True, sequence=1)
     orbit.header.stamp.sec = 100
     act_pub.publish(orbit)
-    assert spin(executor, lambda: beliefs[-1].step == 2, 10), "action not applied"
-    reference.predict("ORBIT_P90")
+    assert spin(executor, lambda: beliefs[-1].step == 2, 10), 'action not applied'
+    reference.predict('ORBIT_P90')
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
                                reference.object_marginal(), atol=1e-12)
 
@@ -127,37 +127,37 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     late_orbit = ExecutedAction(action=ExecutedAction.ORBIT_P90, success=True, sequence=2)
     late_orbit.header.stamp.sec = 200
     act_pub.publish(late_orbit)
-    assert spin(executor, lambda: beliefs[-1].step == 5, 10), "overtaking frame not applied"
-    reference.predict("ORBIT_P90")
+    assert spin(executor, lambda: beliefs[-1].step == 5, 10), 'overtaking frame not applied'
+    reference.predict('ORBIT_P90')
     reference.correct(z3)
     np.testing.assert_allclose(marginal_of(beliefs[-1], models.names),
                                reference.object_marginal(), atol=1e-12)
 
     # Bad input is logged and ignored, and the node keeps running.
-    act_pub.publish(ExecutedAction(action="DANCE", success=True))
+    act_pub.publish(ExecutedAction(action='DANCE', success=True))
     obs_pub.publish(observation_msg((3, 42, 1, 2)))
     spin(executor, lambda: False, 0.5)
     assert beliefs[-1].step == 5 and proc.poll() is None
 
-    reset = node.create_client(ResetBelief, "/abp/reset_belief")
+    reset = node.create_client(ResetBelief, '/abp/reset_belief')
     assert spin(executor, reset.service_is_ready, 10)
     bad = reset.call_async(ResetBelief.Request(model_prior=[1.0, 2.0]))
     assert spin(executor, bad.done, 10)
-    assert not bad.result().success and "prior" in bad.result().message
+    assert not bad.result().success and 'prior' in bad.result().message
     good = reset.call_async(ResetBelief.Request())
     assert spin(executor, good.done, 10) and good.result().success
     assert spin(executor, lambda: beliefs[-1].step == 0, 10)
     assert beliefs[-1].entropy == pytest.approx(np.log2(30))
 
 
-@pytest.mark.parametrize("override, expected", [
-    ("n_tags:=3", "n_tags"),
-    ("model_set:=bogus", "model_set"),
-    ("p_miss:=0.0", "p_miss"),
+@pytest.mark.parametrize('override, expected', [
+    ('n_tags:=3', 'n_tags'),
+    ('model_set:=bogus', 'model_set'),
+    ('p_miss:=0.0', 'p_miss'),
 ])
 def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([belief_executable(), "--ros-args", "-p", override],
+    result = subprocess.run([belief_executable(), '--ros-args', '-p', override],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
-    assert "configuration error" in result.stderr and expected in result.stderr
-    assert "Traceback" not in result.stderr
+    assert 'configuration error' in result.stderr and expected in result.stderr
+    assert 'Traceback' not in result.stderr

@@ -76,14 +76,14 @@ def test_canonical_faces_is_lexmin_over_rotations():
 
 
 def test_action_index_and_n_tags_validation():
-    assert cube.action_index("FLIP") == 7
+    assert cube.action_index('FLIP') == 7
     assert cube.action_index(5) == 5
-    with pytest.raises(ValueError, match="unknown action"):
-        cube.action_index("JUMP")
-    with pytest.raises(ValueError, match="out of range"):
+    with pytest.raises(ValueError, match='unknown action'):
+        cube.action_index('JUMP')
+    with pytest.raises(ValueError, match='out of range'):
         cube.action_index(8)
     for bad in (5, 51, 0, -1):
-        with pytest.raises(ValueError, match="6..50"):
+        with pytest.raises(ValueError, match='6..50'):
             cube.check_n_tags(bad)
 
 

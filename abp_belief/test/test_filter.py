@@ -9,8 +9,8 @@ BeliefFilter = belief_filter.BeliefFilter
 
 # Open loop, so it must work from either yaw parity: the +-45 deg orbits change the
 # parity every cycle and the manual actions sit between different orbits.
-SCRIPT = ["FLIP", "ORBIT_P90", "LIFT", "PUSH", "ORBIT_P45", "FLIP", "ORBIT_P90", "PUSH", "LIFT",
-          "ORBIT_M45", "FLIP", "ORBIT_180", "PUSH", "ORBIT_P45"]
+SCRIPT = ['FLIP', 'ORBIT_P90', 'LIFT', 'PUSH', 'ORBIT_P45', 'FLIP', 'ORBIT_P90', 'PUSH', 'LIFT',
+          'ORBIT_M45', 'FLIP', 'ORBIT_180', 'PUSH', 'ORBIT_P45']
 
 
 class Simulation:
@@ -47,7 +47,7 @@ def test_initial_belief_and_entropy(robot):
     flt = BeliefFilter(robot, prior=prior)
     assert flt.object_marginal()[[2, 5]] == pytest.approx([0.25, 0.75])
     assert flt.entropy() == pytest.approx(belief_filter.entropy_bits([0.25, 0.75]))
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(ValueError, match='shape'):
         BeliefFilter(robot, prior=np.ones(29))
     with pytest.raises(ValueError):
         BeliefFilter(robot, prior=-np.ones(30))
@@ -148,8 +148,8 @@ def test_stable_under_adversarial_observations(robot):
 def test_unnormalisable_update_raises_and_keeps_belief(robot, monkeypatch):
     flt = BeliefFilter(robot)
     before = flt.belief.copy()
-    monkeypatch.setattr(robot.observation, "likelihood", lambda z: np.zeros(robot.num_aspects))
-    with pytest.raises(belief_filter.BeliefUpdateError, match="total likelihood"):
+    monkeypatch.setattr(robot.observation, 'likelihood', lambda z: np.zeros(robot.num_aspects))
+    with pytest.raises(belief_filter.BeliefUpdateError, match='total likelihood'):
         flt.correct((2, 0, 1, -1))
     assert np.array_equal(flt.belief, before)
 
@@ -159,10 +159,10 @@ def test_predict_accepts_names_and_indices_and_reset(robot):
     b = BeliefFilter(robot)
     a.correct((2, 0, 1, -1))
     b.correct((2, 0, 1, -1))
-    a.predict("PUSH")
+    a.predict('PUSH')
     b.predict(5)
     assert np.array_equal(a.belief, b.belief)
     with pytest.raises(ValueError):
-        a.predict("WAVE")
+        a.predict('WAVE')
     a.reset()
     assert a.entropy() == pytest.approx(np.log2(30))

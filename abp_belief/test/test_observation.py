@@ -81,11 +81,11 @@ def test_sample_follows_the_likelihood(robot):
 
 def test_observation_validation(robot):
     obs = robot.observation
-    for bad in [(4, 0, 1, -1), (2, 0, 7, -1), (2, 0, 1, 2), (3, 0, 1), "abc", (2,)]:
+    for bad in [(4, 0, 1, -1), (2, 0, 7, -1), (2, 0, 1, 2), (3, 0, 1), 'abc', (2,)]:
         with pytest.raises(ValueError):
             obs.likelihood(bad)
     assert obs.likelihood((2, 0, 1)).shape == (robot.num_aspects,)   # 3-tuple = type 2
-    with pytest.raises(ValueError, match="p_miss"):
+    with pytest.raises(ValueError, match='p_miss'):
         ObservationParams(p_miss=0.0)
     with pytest.raises(ValueError):
         ObservationParams(p_miss=0.6, p_false=0.5)

@@ -11,7 +11,7 @@ def _brute_force_count(n):
     """Distinct cubes by explicit rotation matrices (independent of ROTATION_FACE_SOURCE)."""
     even = cube.STATE_ROTATIONS[cube.STATE_YAW % 2 == 0]                   # the 24 rotations
     # perm[r, f] = body face that face f is carried to by rotation r.
-    moved = np.einsum("rij,fj->rfi", even, cube.FACE_NORMALS)
+    moved = np.einsum('rij,fj->rfi', even, cube.FACE_NORMALS)
     perm = np.argmax(np.all(np.isclose(moved[:, :, None, :], cube.FACE_NORMALS[None, None]),
                             axis=3), axis=2)
     seen = set()
@@ -26,7 +26,7 @@ def _brute_force_count(n):
     return len(seen)
 
 
-@pytest.mark.parametrize("n", [6, 7, 8])
+@pytest.mark.parametrize('n', [6, 7, 8])
 def test_visual_cube_counts(n):
     cubes = population.visual_cubes(n)
     assert cubes.shape == (comb(n, 6) * 30, 6)
@@ -46,11 +46,11 @@ def test_known_counts_and_brute_force():
         np.array(list(itertools.permutations(range(7), 6))))}
 
 
-@pytest.mark.parametrize("bad", [5, 51, 0])
+@pytest.mark.parametrize('bad', [5, 51, 0])
 def test_tag_range_rejected(bad):
-    with pytest.raises(ValueError, match="6..50"):
+    with pytest.raises(ValueError, match='6..50'):
         population.visual_cubes(bad)
-    with pytest.raises(ValueError, match="6..50"):
+    with pytest.raises(ValueError, match='6..50'):
         population.random_visual_subset(3, n_tags=bad)
 
 
@@ -85,7 +85,7 @@ def test_robot_set_twin_structure(robot):
     assert population.robot_set(seed=1).names != robot.names
 
 
-@pytest.mark.parametrize("size", [30, 60, 120])
+@pytest.mark.parametrize('size', [30, 60, 120])
 def test_random_visual_subsets_are_seeded_distinct_uniform_mass(size):
     a = population.random_visual_subset(size, seed=3)
     b = population.random_visual_subset(size, seed=3)
@@ -99,14 +99,14 @@ def test_random_visual_subsets_are_seeded_distinct_uniform_mass(size):
 
 
 def test_random_subset_size_validation():
-    with pytest.raises(ValueError, match="1..210"):
+    with pytest.raises(ValueError, match='1..210'):
         population.random_visual_subset(211)
-    with pytest.raises(ValueError, match="1..210"):
+    with pytest.raises(ValueError, match='1..210'):
         population.random_visual_subset(0)
 
 
 def test_large_tag_sets_only_random():
-    with pytest.raises(ValueError, match="random_visual_subset"):
+    with pytest.raises(ValueError, match='random_visual_subset'):
         population.visual_cubes(50)
     ms = population.random_visual_subset(40, n_tags=50, seed=1)
     assert ms.num_visual_cubes == 40

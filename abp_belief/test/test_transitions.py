@@ -8,7 +8,7 @@ ACTIONS, FACE_NORMALS = cube.ACTIONS, cube.FACE_NORMALS
 BeliefFilter = belief_filter.BeliefFilter
 TransitionParams, build_outcome_tables = modelset.TransitionParams, modelset.build_outcome_tables
 
-MANUAL = [ACTIONS.index(a) for a in ("PUSH", "LIFT", "FLIP")]
+MANUAL = [ACTIONS.index(a) for a in ('PUSH', 'LIFT', 'FLIP')]
 ORBITS = [ACTIONS.index(a) for a in cube.ORBIT_STEPS]
 
 
@@ -76,28 +76,28 @@ def test_push_pivots_mass_side_and_slides_otherwise(full7):
     for m in range(1, 7):
         for s in _states_with_mass_at(m, [0, 1, 0]):          # heavy right side drags: yaw - 1
             up, yaw = divmod(s, 8)
-            assert _outcomes(full7, "PUSH", m, s) == pytest.approx(
+            assert _outcomes(full7, 'PUSH', m, s) == pytest.approx(
                 {8 * up + (yaw - 1) % 8: 1 - p.p_fail_push - p.p_push_neighbour,
                  s: p.p_fail_push, 8 * up + (yaw + 1) % 8: p.p_push_neighbour})
         for s in _states_with_mass_at(m, [0, -1, 0]):
             up, yaw = divmod(s, 8)
-            assert _outcomes(full7, "PUSH", m, s)[8 * up + (yaw + 1) % 8] == pytest.approx(
+            assert _outcomes(full7, 'PUSH', m, s)[8 * up + (yaw + 1) % 8] == pytest.approx(
                 1 - p.p_fail_push - p.p_push_neighbour)
         for d in ([1, 0, 0], [-1, 0, 0], [0, 0, 1], [0, 0, -1]):
             for s in _states_with_mass_at(m, d):
                 up, yaw = divmod(s, 8)
-                assert _outcomes(full7, "PUSH", m, s) == pytest.approx(
+                assert _outcomes(full7, 'PUSH', m, s) == pytest.approx(
                     {s: 1 - p.p_push_neighbour, 8 * up + (yaw + 1) % 8: p.p_push_neighbour / 2,
                      8 * up + (yaw - 1) % 8: p.p_push_neighbour / 2})
     for s in range(0, 48, 2):                                  # uniform slides
-        assert _outcomes(full7, "PUSH", 0, s)[s] == pytest.approx(1 - p.p_push_neighbour)
+        assert _outcomes(full7, 'PUSH', 0, s)[s] == pytest.approx(1 - p.p_push_neighbour)
 
 
 def test_push_pivot_shows_a_three_feature_aspect():
     faces = [0, 1, 2, 3, 4, 5]
     s = 8 * 4                                                   # identity: +y face on the right
     mass = 1 + 2                                                # heavy +y face
-    q = cube.nominal_rotation("PUSH", mass, s)
+    q = cube.nominal_rotation('PUSH', mass, s)
     after = cube.apply_rotation(q, s)
     assert after == s + 7                                       # yaw -1 (mod 8)
     assert cube.aspect_of(faces, after)[0] == 3
@@ -110,7 +110,7 @@ def test_lift_physics(full7):
     for m in range(1, 7):
         f = m - 1
         for s in _states_with_mass_at(m, [0, 0, 1]):            # mass on top: 180 deg about y
-            out = _outcomes(full7, "LIFT", m, s)
+            out = _outcomes(full7, 'LIFT', m, s)
             assert out[s] == pytest.approx(fail)
             (flipped,) = [x for x in out if x != s]
             assert out[flipped] == pytest.approx(1 - fail)
@@ -120,28 +120,28 @@ def test_lift_physics(full7):
             assert np.allclose(_mass_dir(m, flipped), [0, 0, -1])
         for d in ([1, 0, 0], [-1, 0, 0]):                       # mass front/back ends down
             for s in _states_with_mass_at(m, d):
-                out = _outcomes(full7, "LIFT", m, s)
+                out = _outcomes(full7, 'LIFT', m, s)
                 (moved,) = [x for x in out if x != s]
                 assert np.allclose(_mass_dir(m, moved), [0, 0, -1])
                 assert cube.STATE_YAW[moved] % 2 == 0
         for d in ([0, 0, -1], [0, 1, 0], [0, -1, 0]):
             for s in _states_with_mass_at(m, d):
-                assert _outcomes(full7, "LIFT", m, s) == {s: 1.0}
+                assert _outcomes(full7, 'LIFT', m, s) == {s: 1.0}
     for s in range(0, 48, 2):
-        assert _outcomes(full7, "LIFT", 0, s) == {s: 1.0}
+        assert _outcomes(full7, 'LIFT', 0, s) == {s: 1.0}
 
 
 def test_flip_physics(full7):
     fail = full7.transition_params.p_fail_flip
     for s in range(0, 48, 2):
-        out = _outcomes(full7, "FLIP", 0, s)                    # uniform: front to top
+        out = _outcomes(full7, 'FLIP', 0, s)                    # uniform: front to top
         (moved,) = [x for x in out if x != s]
         assert out[moved] == pytest.approx(1 - fail)
         assert cube.STATE_TOP_FACE[moved] == cube.STATE_FRONT_FACE[s]
         assert cube.STATE_FRONT_FACE[moved] == cube.OPPOSITE_FACE[cube.STATE_TOP_FACE[s]]
     for m in range(1, 7):
         for s in range(0, 48, 2):                               # eccentric: mass to the base
-            out = _outcomes(full7, "FLIP", m, s)
+            out = _outcomes(full7, 'FLIP', m, s)
             if np.allclose(_mass_dir(m, s), [0, 0, -1]):
                 assert out == {s: 1.0}
                 continue
@@ -150,7 +150,7 @@ def test_flip_physics(full7):
             assert cube.STATE_YAW[moved] % 2 == 0
     # d = +y: -90 deg about x (specific case from MODEL.md).
     (s,) = [x for x in _states_with_mass_at(3, [0, 1, 0]) if x // 8 == 4]
-    (moved,) = [x for x in _outcomes(full7, "FLIP", 3, s) if x != s]
+    (moved,) = [x for x in _outcomes(full7, 'FLIP', 3, s) if x != s]
     assert np.allclose(cube.STATE_ROTATIONS[moved], cube.rot_x(-90) @ cube.STATE_ROTATIONS[s])
 
 
@@ -181,8 +181,8 @@ def test_twins_are_indistinguishable_by_orbits(robot):
         assert np.allclose(states, states[0], rtol=1e-9, atol=1e-300)
 
 
-@pytest.mark.parametrize("action,mass_face_dir", [("PUSH", [0, 1, 0]), ("LIFT", [0, 0, 1]),
-                                                   ("FLIP", [0, -1, 0])])
+@pytest.mark.parametrize('action,mass_face_dir', [('PUSH', [0, 1, 0]), ('LIFT', [0, 0, 1]),
+                                                   ('FLIP', [0, -1, 0])])
 def test_manual_actions_separate_twins(robot, action, mass_face_dir):
     members = _twin_group(robot)
     twins = robot.subset(members)

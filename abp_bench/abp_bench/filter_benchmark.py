@@ -41,32 +41,32 @@ def bench_one(model_set, repeats: int, rng: np.random.Generator) -> dict:
     other = (flt.belief.nbytes * 2 + model_set.node_aspect.nbytes
              + model_set.observation.aspect_likelihood.nbytes
              + model_set.outcome_states.nbytes + model_set.outcome_probs.nbytes)
-    return {"models": model_set.num_models, "nodes": model_set.num_nodes,
-            "aspects": model_set.num_aspects,
-            "median_ms": float(np.median(times) * 1e3),
-            "p90_ms": float(np.quantile(times, 0.9) * 1e3),
-            "transitions_mib": transitions / 2**20, "transposes_mib": transposes / 2**20,
-            "other_mib": other / 2**20}
+    return {'models': model_set.num_models, 'nodes': model_set.num_nodes,
+            'aspects': model_set.num_aspects,
+            'median_ms': float(np.median(times) * 1e3),
+            'p90_ms': float(np.quantile(times, 0.9) * 1e3),
+            'transitions_mib': transitions / 2**20, 'transposes_mib': transposes / 2**20,
+            'other_mib': other / 2**20}
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="bench_filter", description=__doc__)
-    parser.add_argument("--repeats", type=int, default=300, help="filter steps per size")
-    parser.add_argument("--seed", type=int, default=0)
+    parser = argparse.ArgumentParser(prog='bench_filter', description=__doc__)
+    parser.add_argument('--repeats', type=int, default=300, help='filter steps per size')
+    parser.add_argument('--seed', type=int, default=0)
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
     if args.repeats < 1:
-        print("bench_filter: error: --repeats must be >= 1", file=sys.stderr)
+        print('bench_filter: error: --repeats must be >= 1', file=sys.stderr)
         return 2
     rng = np.random.default_rng(args.seed)
-    sets = [("random 30", lambda: population.random_visual_subset(30, seed=args.seed)),
-            ("random 120", lambda: population.random_visual_subset(120, seed=args.seed)),
-            ("full n=7", lambda: population.full_set(7))]
-    print("| set | models | nodes | aspects | build (s) | predict+correct median (ms) "
-          "| p90 (ms) | T (MiB) | T^T (MiB) | other arrays (MiB) |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    sets = [('random 30', lambda: population.random_visual_subset(30, seed=args.seed)),
+            ('random 120', lambda: population.random_visual_subset(120, seed=args.seed)),
+            ('full n=7', lambda: population.full_set(7))]
+    print('| set | models | nodes | aspects | build (s) | predict+correct median (ms) '
+          '| p90 (ms) | T (MiB) | T^T (MiB) | other arrays (MiB) |')
+    print('|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|')
     for label, make in sets:
         start = time.perf_counter()
         model_set = make()
@@ -78,5 +78,5 @@ def main(argv=None) -> int:
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -45,7 +45,7 @@ FAULTS_YAML = """/**/sim_bridge:
 
 
 def repo_root():
-    env = os.environ.get("ABP_REPO")
+    env = os.environ.get('ABP_REPO')
     return pathlib.Path(env) if env else pathlib.Path(__file__).resolve().parents[2]
 
 
@@ -59,7 +59,7 @@ class LatencyProbe:
         # No rclpy signal handler: Ctrl-C must reach the episode loop as KeyboardInterrupt
         # so that the running graph is stopped cleanly.
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node("latency_probe", context=self.context)
+        self.node = rclpy.create_node('latency_probe', context=self.context)
         self.image_times = {}
         self.latencies_ms = []
         self.observation_latencies_ms = []
@@ -107,24 +107,24 @@ class LatencyProbe:
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="graph_benchmark", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--episodes", type=int, default=20)
-    parser.add_argument("--models", default="robot", help="as start_graph.sh --models")
-    parser.add_argument("--planner", default="abp")
-    parser.add_argument("--seed", type=int, default=0, help="model-set seed")
-    parser.add_argument("--faults", action="store_true")
-    parser.add_argument("--speedup", type=float, default=10.0)
-    parser.add_argument("--timeout", type=float, default=900.0, help="per episode, wall s")
-    parser.add_argument("--json", default="")
+    parser = argparse.ArgumentParser(prog='graph_benchmark', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--episodes', type=int, default=20)
+    parser.add_argument('--models', default='robot', help='as start_graph.sh --models')
+    parser.add_argument('--planner', default='abp')
+    parser.add_argument('--seed', type=int, default=0, help='model-set seed')
+    parser.add_argument('--faults', action='store_true')
+    parser.add_argument('--speedup', type=float, default=10.0)
+    parser.add_argument('--timeout', type=float, default=900.0, help='per episode, wall s')
+    parser.add_argument('--json', default='')
     args = parser.parse_args(argv)
     if args.episodes < 1:
-        parser.error("--episodes must be >= 1")
+        parser.error('--episodes must be >= 1')
     return args
 
 
 def model_count(models, seed):
-    if models.startswith("random:"):
-        return model_set_from_config("random", int(models.split(":")[1]), seed=seed).num_models
+    if models.startswith('random:'):
+        return model_set_from_config('random', int(models.split(':')[1]), seed=seed).num_models
     return model_set_from_config(models, seed=seed).num_models
 
 
@@ -140,56 +140,56 @@ def stop_graph(proc):
 
 
 def run_episode(args, index, workdir, params_file):
-    result_file = workdir / f"episode-{index}.json"
-    cmd = [str(repo_root() / "scripts" / "start_graph.sh"), "--models", args.models,
-           "--seed", str(args.seed), "--object", str(index), "--planner", args.planner,
-           "--speedup", str(args.speedup), "--result-json", str(result_file),
-           "--log-dir", str(workdir / f"logs-{index}"), "--timeout", str(args.timeout)]
+    result_file = workdir / f'episode-{index}.json'
+    cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--models', args.models,
+           '--seed', str(args.seed), '--object', str(index), '--planner', args.planner,
+           '--speedup', str(args.speedup), '--result-json', str(result_file),
+           '--log-dir', str(workdir / f'logs-{index}'), '--timeout', str(args.timeout)]
     if params_file:
-        cmd += ["--params", str(params_file)]
+        cmd += ['--params', str(params_file)]
     started = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         proc.wait(timeout=args.timeout + 120)
     except subprocess.TimeoutExpired:
         stop_graph(proc)
-        return {"object": index, "hung": True, "correct": False,
-                "wall_s": time.monotonic() - started}
+        return {'object': index, 'hung': True, 'correct': False,
+                'wall_s': time.monotonic() - started}
     except KeyboardInterrupt:
         stop_graph(proc)
         raise
     result = json.loads(result_file.read_text()) if result_file.exists() else {}
     result.update(object=index, hung=False, wall_s=time.monotonic() - started)
-    result.setdefault("correct", False)
+    result.setdefault('correct', False)
     return result
 
 
 def summarise(results, latencies, observation_latencies, args):
     n = len(results)
-    correct = sum(r["correct"] for r in results)
-    done = [r for r in results if "actions" in r]
+    correct = sum(r['correct'] for r in results)
+    done = [r for r in results if 'actions' in r]
     lat = np.array(latencies) if latencies else np.array([np.nan])
     obs = np.array(observation_latencies) if observation_latencies else np.array([np.nan])
     rows = [
-        ("episodes", f"{n}"),
-        ("correct", f"{correct}/{n} ({100.0 * correct / n:.1f} %)"),
-        ("hung (no result within the timeout)", f"{sum(r['hung'] for r in results)}"),
-        ("mean actions", f"{statistics.mean(r['actions'] for r in done):.2f}" if done else "-"),
-        ("mean sim time per episode (s)",
-         f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else "-"),
-        ("median wall time per episode (s)",
+        ('episodes', f'{n}'),
+        ('correct', f'{correct}/{n} ({100.0 * correct / n:.1f} %)'),
+        ('hung (no result within the timeout)', f"{sum(r['hung'] for r in results)}"),
+        ('mean actions', f"{statistics.mean(r['actions'] for r in done):.2f}" if done else '-'),
+        ('mean sim time per episode (s)',
+         f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else '-'),
+        ('median wall time per episode (s)',
          f"{statistics.median(r['wall_s'] for r in results):.1f}"),
-        ("image -> belief latency, median / p95 (ms)",
-         f"{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)"),
-        ("image -> aspect observation latency, median / p95 (ms)",
-         f"{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} "
-         f"({len(observation_latencies)} frames)"),
+        ('image -> belief latency, median / p95 (ms)',
+         f'{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)'),
+        ('image -> aspect observation latency, median / p95 (ms)',
+         f'{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} '
+         f'({len(observation_latencies)} frames)'),
     ]
     title = (f"{args.models} models, planner {args.planner}, "
              f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
-    lines = [f"**{title}**", "", "| measure | value |", "|---|---|"]
-    lines += [f"| {k} | {v} |" for k, v in rows]
-    return "\n".join(lines)
+    lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
+    lines += [f'| {k} | {v} |' for k, v in rows]
+    return '\n'.join(lines)
 
 
 def main(argv=None):
@@ -203,11 +203,11 @@ def main(argv=None):
                                                       replace=args.episodes > count)
     probe = LatencyProbe()
     results = []
-    with tempfile.TemporaryDirectory(prefix="abp-graph-bench-") as tmp:
+    with tempfile.TemporaryDirectory(prefix='abp-graph-bench-') as tmp:
         workdir = pathlib.Path(tmp)
         params_file = None
         if args.faults:
-            params_file = workdir / "faults.yaml"
+            params_file = workdir / 'faults.yaml'
             params_file.write_text(FAULTS_YAML)
         try:
             for number, index in enumerate(objects, 1):
@@ -220,7 +220,7 @@ def main(argv=None):
                       f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",
                       file=sys.stderr, flush=True)
         except KeyboardInterrupt:
-            print("[graph_benchmark] interrupted; the running graph was stopped",
+            print('[graph_benchmark] interrupted; the running graph was stopped',
                   file=sys.stderr)
             return 130
         finally:
@@ -228,13 +228,13 @@ def main(argv=None):
     table = summarise(results, probe.latencies_ms, probe.observation_latencies_ms, args)
     print(table)
     if args.json:
-        with open(args.json, "w") as out:
-            json.dump({"args": vars(args), "results": results,
-                       "latencies_ms": probe.latencies_ms,
-                       "observation_latencies_ms": probe.observation_latencies_ms}, out,
+        with open(args.json, 'w') as out:
+            json.dump({'args': vars(args), 'results': results,
+                       'latencies_ms': probe.latencies_ms,
+                       'observation_latencies_ms': probe.observation_latencies_ms}, out,
                       indent=2)
-    return 0 if all(r["correct"] for r in results) else 1
+    return 0 if all(r['correct'] for r in results) else 1
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

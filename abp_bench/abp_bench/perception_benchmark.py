@@ -36,10 +36,10 @@ from abp_perception.detector import TagDetector
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
 DISTANCES = (0.5, 1.0, 1.5, 2.0, 2.5)
-NOISE_LEVELS = {"clean": (0.0, 0.0), "default": (0.6, 2.0), "noisy": (1.0, 5.0),
-                "very noisy": (1.5, 8.0)}
-GOALS = {"recall": 0.99, "precision": 0.999, "detect_ms": 10.0, "centre_mm": 5.0,
-         "top1": 0.99, "match_ms": 5.0}
+NOISE_LEVELS = {'clean': (0.0, 0.0), 'default': (0.6, 2.0), 'noisy': (1.0, 5.0),
+                'very noisy': (1.5, 8.0)}
+GOALS = {'recall': 0.99, 'precision': 0.999, 'detect_ms': 10.0, 'centre_mm': 5.0,
+         'top1': 0.99, 'match_ms': 5.0}
 
 
 def _sim_bridge_effects():
@@ -106,17 +106,17 @@ def run_detection(gen, models, detector, rng, distances, frames, level):
             result = detector.detect(scene.image)
             cpu.append(time.thread_time() - t0)
             wall.append(time.perf_counter() - w0)
-            world = result.in_frame(scene.camera_pose, "base_link")
+            world = result.in_frame(scene.camera_pose, 'base_link')
             *counts, e = score_detections(scene, world.detections)
             acc += np.array(counts)
             errs += e
-        rows.append({"distance": distance, "level": level, "frames": frames,
-                     "exp60": int(acc[0]), "found60": int(acc[1]), "exp70": int(acc[2]),
-                     "found70": int(acc[3]), "correct": int(acc[4]), "wrong": int(acc[5]),
-                     "err_median": float(np.median(errs)) if errs else float("nan"),
-                     "err_p90": float(np.percentile(errs, 90)) if errs else float("nan"),
-                     "cpu_ms": 1e3 * float(np.median(cpu)),
-                     "wall_ms": 1e3 * float(np.median(wall))})
+        rows.append({'distance': distance, 'level': level, 'frames': frames,
+                     'exp60': int(acc[0]), 'found60': int(acc[1]), 'exp70': int(acc[2]),
+                     'found70': int(acc[3]), 'correct': int(acc[4]), 'wrong': int(acc[5]),
+                     'err_median': float(np.median(errs)) if errs else float('nan'),
+                     'err_p90': float(np.percentile(errs, 90)) if errs else float('nan'),
+                     'cpu_ms': 1e3 * float(np.median(cpu)),
+                     'wall_ms': 1e3 * float(np.median(wall))})
     return rows
 
 
@@ -125,7 +125,7 @@ def run_matching(gen, models, detector, matcher, rng, trials, distance_range):
     for _ in range(trials):
         distance = float(rng.uniform(*distance_range))
         scene = random_scene(gen, models, rng, distance)
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, "base_link")
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
         feats = features_from_detections(result.detections)
         t0, w0 = time.thread_time(), time.perf_counter()
         match = matcher.match(feats)
@@ -136,11 +136,11 @@ def run_matching(gen, models, detector, matcher, rng, trials, distance_range):
             s in (-1, t) for s, t in zip(best.slots, scene.aspect[1:])) \
             and best.aspect_type == scene.aspect[0]
         pos_err = float(np.linalg.norm(best.position - scene.cube_pose[:3, 3])) \
-            if best is not None else float("nan")
-        rows.append({"distance": distance, "type": scene.aspect[0], "ok": ok,
-                     "partial": partial, "none": best is None, "cpu_ms": 1e3 * cpu,
-                     "wall_ms": 1e3 * wall, "pos_err": pos_err,
-                     "features": len(feats)})
+            if best is not None else float('nan')
+        rows.append({'distance': distance, 'type': scene.aspect[0], 'ok': ok,
+                     'partial': partial, 'none': best is None, 'cpu_ms': 1e3 * cpu,
+                     'wall_ms': 1e3 * wall, 'pos_err': pos_err,
+                     'features': len(feats)})
     return rows
 
 
@@ -157,28 +157,28 @@ def run_robot_matching(gen, models, detector, matcher, rng, trials, kinematics):
         scene, _ = gen.render_robot(kinematics, models.faces[model], state, centre,
                                     yaw_error_deg=float(rng.uniform(-8.0, 8.0)),
                                     distractors=distractors)
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, "base_link")
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
         match = matcher.match(features_from_detections(result.detections))
         best = match.best
         ok = best is not None and best.key == scene.aspect
         partial = best is not None and not ok and best.aspect_type == scene.aspect[0] and all(
             s in (-1, t) for s, t in zip(best.slots, scene.aspect[1:]))
-        rows.append({"distance": scene.distance, "type": scene.aspect[0], "ok": ok,
-                     "partial": partial, "none": best is None, "pos_err": float(
+        rows.append({'distance': scene.distance, 'type': scene.aspect[0], 'ok': ok,
+                     'partial': partial, 'none': best is None, 'pos_err': float(
                          np.linalg.norm(best.position - scene.cube_pose[:3, 3]))
-                     if best is not None else float("nan"),
-                     "elevation": scene.elevation_deg})
+                     if best is not None else float('nan'),
+                     'elevation': scene.elevation_deg})
     return rows
 
 
 def _pct(num, den):
-    return f"{100.0 * num / den:.2f} %" if den else "n/a"
+    return f'{100.0 * num / den:.2f} %' if den else 'n/a'
 
 
 def detection_table(rows):
-    out = ["| distance (m) | noise | frames | recall ≤60° | recall 60-70° | precision "
-           "| face-centre error median / p90 (mm) | detect CPU / wall median (ms) |",
-           "|---|---|---|---|---|---|---|---|"]
+    out = ['| distance (m) | noise | frames | recall ≤60° | recall 60-70° | precision '
+           '| face-centre error median / p90 (mm) | detect CPU / wall median (ms) |',
+           '|---|---|---|---|---|---|---|---|']
     for r in rows:
         out.append(
             f"| {r['distance']:.1f} | {r['level']} | {r['frames']} "
@@ -188,99 +188,99 @@ def detection_table(rows):
             f"({r['correct']}/{r['correct'] + r['wrong']}) "
             f"| {1e3 * r['err_median']:.1f} / {1e3 * r['err_p90']:.1f} "
             f"| {r['cpu_ms']:.2f} / {r['wall_ms']:.2f} |")
-    return "\n".join(out)
+    return '\n'.join(out)
 
 
 def matching_table(rows, bins):
-    out = ["| distance (m) | trials | top-1 | top-1 type 2 | top-1 type 3 "
-           "| partial (missed tag) | no hypothesis | cube-centre error median (mm) |",
-           "|---|---|---|---|---|---|---|---|"]
+    out = ['| distance (m) | trials | top-1 | top-1 type 2 | top-1 type 3 '
+           '| partial (missed tag) | no hypothesis | cube-centre error median (mm) |',
+           '|---|---|---|---|---|---|---|---|']
     for lo, hi in bins:
-        sel = [r for r in rows if lo <= r["distance"] < hi]
+        sel = [r for r in rows if lo <= r['distance'] < hi]
         if not sel:
             continue
-        t2 = [r for r in sel if r["type"] == 2]
-        t3 = [r for r in sel if r["type"] == 3]
-        errs = [r["pos_err"] for r in sel if r["ok"]]
+        t2 = [r for r in sel if r['type'] == 2]
+        t3 = [r for r in sel if r['type'] == 3]
+        errs = [r['pos_err'] for r in sel if r['ok']]
         out.append(
             f"| {lo:.1f}-{hi:.1f} | {len(sel)} | {_pct(sum(r['ok'] for r in sel), len(sel))} "
             f"| {_pct(sum(r['ok'] for r in t2), len(t2))} "
             f"| {_pct(sum(r['ok'] for r in t3), len(t3))} "
             f"| {sum(r['partial'] for r in sel)} | {sum(r['none'] for r in sel)} "
             f"| {1e3 * float(np.median(errs)) if errs else float('nan'):.1f} |")
-    return "\n".join(out)
+    return '\n'.join(out)
 
 
 def goals_table(det_rows, match_rows, match_range):
-    default = [r for r in det_rows if r["level"] == "default"]
-    upto2 = [r for r in default if r["distance"] <= 2.0]
-    exp = sum(r["exp60"] for r in upto2)
-    rec = sum(r["found60"] for r in upto2) / max(exp, 1)
-    cor = sum(r["correct"] for r in upto2)
-    prec = cor / max(cor + sum(r["wrong"] for r in upto2), 1)
-    det_ms = float(np.median([r["cpu_ms"] for r in default]))
-    at1 = [r for r in default if abs(r["distance"] - 1.0) < 1e-9]
-    centre = 1e3 * at1[0]["err_median"] if at1 else float("nan")
-    sel = [r for r in match_rows if match_range[0] <= r["distance"] < match_range[1]]
-    top1 = sum(r["ok"] for r in sel) / max(len(sel), 1)
-    match_ms = float(np.median([r["cpu_ms"] for r in match_rows]))
+    default = [r for r in det_rows if r['level'] == 'default']
+    upto2 = [r for r in default if r['distance'] <= 2.0]
+    exp = sum(r['exp60'] for r in upto2)
+    rec = sum(r['found60'] for r in upto2) / max(exp, 1)
+    cor = sum(r['correct'] for r in upto2)
+    prec = cor / max(cor + sum(r['wrong'] for r in upto2), 1)
+    det_ms = float(np.median([r['cpu_ms'] for r in default]))
+    at1 = [r for r in default if abs(r['distance'] - 1.0) < 1e-9]
+    centre = 1e3 * at1[0]['err_median'] if at1 else float('nan')
+    sel = [r for r in match_rows if match_range[0] <= r['distance'] < match_range[1]]
+    top1 = sum(r['ok'] for r in sel) / max(len(sel), 1)
+    match_ms = float(np.median([r['cpu_ms'] for r in match_rows]))
 
     def row(name, goal, value, ok):
         return f"| {name} | {goal} | {value} | {'met' if ok else 'MISSED'} |"
 
-    return "\n".join([
-        "| goal | target | measured | |", "|---|---|---|---|",
-        row("detection recall, 8 cm tags ≤ 2 m, default noise (view ≤ 60°)", "≥ 99 %",
-            f"{100 * rec:.2f} %", rec >= GOALS["recall"]),
-        row("detection precision, ≤ 2 m, default noise", "≥ 99.9 %", f"{100 * prec:.3f} %",
-            prec >= GOALS["precision"]),
-        row("detection time per 640x480 frame (median, CPU)", "≤ 10 ms", f"{det_ms:.2f} ms",
-            det_ms <= GOALS["detect_ms"]),
-        row("face-centre error at 1 m (median)", "≤ 5 mm", f"{centre:.2f} mm",
-            centre <= GOALS["centre_mm"]),
-        row(f"aspect top-1 with 2 distractors ({match_range[0]:.1f}-{match_range[1]:.1f} m)",
-            "≥ 99 %", f"{100 * top1:.2f} %", top1 >= GOALS["top1"]),
-        row("matching time vs the 1470-model set (median, CPU)", "≤ 5 ms",
-            f"{match_ms:.3f} ms", match_ms <= GOALS["match_ms"]),
+    return '\n'.join([
+        '| goal | target | measured | |', '|---|---|---|---|',
+        row('detection recall, 8 cm tags ≤ 2 m, default noise (view ≤ 60°)', '≥ 99 %',
+            f'{100 * rec:.2f} %', rec >= GOALS['recall']),
+        row('detection precision, ≤ 2 m, default noise', '≥ 99.9 %', f'{100 * prec:.3f} %',
+            prec >= GOALS['precision']),
+        row('detection time per 640x480 frame (median, CPU)', '≤ 10 ms', f'{det_ms:.2f} ms',
+            det_ms <= GOALS['detect_ms']),
+        row('face-centre error at 1 m (median)', '≤ 5 mm', f'{centre:.2f} mm',
+            centre <= GOALS['centre_mm']),
+        row(f'aspect top-1 with 2 distractors ({match_range[0]:.1f}-{match_range[1]:.1f} m)',
+            '≥ 99 %', f'{100 * top1:.2f} %', top1 >= GOALS['top1']),
+        row('matching time vs the 1470-model set (median, CPU)', '≤ 5 ms',
+            f'{match_ms:.3f} ms', match_ms <= GOALS['match_ms']),
     ])
 
 
 def update_doc(path, section):
     """Add or replace the '## Perception' section of a Markdown file (others kept)."""
     import re
-    text = open(path).read() if os.path.exists(path) else "# Benchmarks\n"
-    pattern = re.compile(r"^## Perception\b.*?(?=^## |\Z)", re.S | re.M)
-    body = section.rstrip() + "\n\n"
+    text = open(path).read() if os.path.exists(path) else '# Benchmarks\n'
+    pattern = re.compile(r'^## Perception\b.*?(?=^## |\Z)', re.S | re.M)
+    body = section.rstrip() + '\n\n'
     if pattern.search(text):
         text = pattern.sub(lambda _: body, text, count=1)
     else:
-        text = text.rstrip() + "\n\n" + body
-    with open(path, "w") as stream:
-        stream.write(text.rstrip() + "\n")
+        text = text.rstrip() + '\n\n' + body
+    with open(path, 'w') as stream:
+        stream.write(text.rstrip() + '\n')
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=120,
-                        help="frames per distance at default noise (default 120)")
-    parser.add_argument("--noise-frames", type=int, default=60,
-                        help="frames per (distance, noise level) of the noise table")
-    parser.add_argument("--match-trials", type=int, default=600)
-    parser.add_argument("--distance-trials", type=int, default=200,
-                        help="matching trials over 0.5-2.5 m for the by-distance table")
-    parser.add_argument("--robot-trials", type=int, default=300,
+    parser.add_argument('--frames', type=int, default=120,
+                        help='frames per distance at default noise (default 120)')
+    parser.add_argument('--noise-frames', type=int, default=60,
+                        help='frames per (distance, noise level) of the noise table')
+    parser.add_argument('--match-trials', type=int, default=600)
+    parser.add_argument('--distance-trials', type=int, default=200,
+                        help='matching trials over 0.5-2.5 m for the by-distance table')
+    parser.add_argument('--robot-trials', type=int, default=300,
                         help="matching trials at the robot's working pose (0: skip)")
-    parser.add_argument("--match-min", type=float, default=0.6, help="matching distances, m")
-    parser.add_argument("--match-max", type=float, default=1.6)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--threads", type=int, default=1, help="OpenCV threads")
-    parser.add_argument("--update-doc", metavar="PATH",
+    parser.add_argument('--match-min', type=float, default=0.6, help='matching distances, m')
+    parser.add_argument('--match-max', type=float, default=1.6)
+    parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--threads', type=int, default=1, help='OpenCV threads')
+    parser.add_argument('--update-doc', metavar='PATH',
                         help="write the tables as the '## Perception' section of PATH")
     args = parser.parse_args(argv)
     if args.frames < 1 or args.noise_frames < 0 or args.match_trials < 1:
-        parser.error("--frames and --match-trials must be >= 1, --noise-frames >= 0")
+        parser.error('--frames and --match-trials must be >= 1, --noise-frames >= 0')
     if not 0 < args.match_min < args.match_max:
-        parser.error("need 0 < --match-min < --match-max")
+        parser.error('need 0 < --match-min < --match-max')
 
     from abp_belief.population import full_set
     from abp_bench.scenes import SceneGenerator
@@ -294,11 +294,11 @@ def main(argv=None):
     matcher = AspectMatcher(models)
     build_s = time.perf_counter() - t0
 
-    det_rows = run_detection(gen, models, detector, rng, DISTANCES, args.frames, "default")
+    det_rows = run_detection(gen, models, detector, rng, DISTANCES, args.frames, 'default')
     noise_rows = []
     if args.noise_frames:
         for level in NOISE_LEVELS:
-            if level != "default":
+            if level != 'default':
                 noise_rows += run_detection(gen, models, detector, rng, (1.0, 2.0),
                                             args.noise_frames, level)
     match_range = (args.match_min, args.match_max)
@@ -312,18 +312,18 @@ def main(argv=None):
         robot_gen = SceneGenerator(seed=args.seed + 1, effects=_sim_bridge_effects())
         robot_rows = run_robot_matching(robot_gen, models, detector, matcher, rng,
                                         args.robot_trials, RobotKinematics())
-    cpu = np.array([r["cpu_ms"] for r in match_rows])
-    wall = np.array([r["wall_ms"] for r in match_rows])
+    cpu = np.array([r['cpu_ms'] for r in match_rows])
+    wall = np.array([r['wall_ms'] for r in match_rows])
 
-    command = "perception_benchmark " + " ".join(argv if argv is not None else sys.argv[1:])
+    command = 'perception_benchmark ' + ' '.join(argv if argv is not None else sys.argv[1:])
     try:
-        load = "load average {:.1f} / {:.1f} / {:.1f}".format(*os.getloadavg())
+        load = 'load average {:.1f} / {:.1f} / {:.1f}'.format(*os.getloadavg())
     except OSError:
-        load = "load average unknown"
-    machine = f"{os.cpu_count()} CPU cores, {load} (1/5/15 min) at the end of the run"
+        load = 'load average unknown'
+    machine = f'{os.cpu_count()} CPU cores, {load} (1/5/15 min) at the end of the run'
     lines = [
-        "## Perception",
-        "",
+        '## Perception',
+        '',
         "ArUco tag detection (`abp_perception.detector`) and aspect matching "
         "(`abp_perception.matcher`, paper Alg. 2) on scenes rendered by the sim bridge's "
         "renderer: a random model of the full 1470-model set in a random state (yaw error "
@@ -331,46 +331,46 @@ def main(argv=None):
         "0..6, one outside), 8 cm tags on 10 cm cubes. Default noise = blur σ 0.6 px + noise "
         "σ 2 grey levels. Times: median CPU time of one thread, OpenCV on "
         f"{args.threads} thread(s); wall-clock medians beside them. Machine: {machine}.",
-        "",
-        "Reproduce (after `scripts/bootstrap.sh && source scripts/env.sh`; on a robot "
-        "`ros2 run abp_bench perception_benchmark ...`):",
-        "",
-        "```",
-        f"install/abp_bench/lib/abp_bench/{command.strip()}",
-        "```",
-        "",
-        "### Goals",
-        "",
+        '',
+        'Reproduce (after `scripts/bootstrap.sh && source scripts/env.sh`; on a robot '
+        '`ros2 run abp_bench perception_benchmark ...`):',
+        '',
+        '```',
+        f'install/abp_bench/lib/abp_bench/{command.strip()}',
+        '```',
+        '',
+        '### Goals',
+        '',
         goals_table(det_rows, match_rows, match_range),
-        "",
-        "### Detection by distance (default noise)",
-        "",
+        '',
+        '### Detection by distance (default noise)',
+        '',
         detection_table(det_rows),
-        "",
+        '',
     ]
     if noise_rows:
-        lines += ["### Detection under other noise levels",
-                  "",
-                  "Noise levels: " + ", ".join(f"{k} = blur {v[0]} px / noise {v[1]}"
-                                               for k, v in NOISE_LEVELS.items()) + ".",
-                  "",
-                  detection_table(noise_rows), ""]
+        lines += ['### Detection under other noise levels',
+                  '',
+                  'Noise levels: ' + ', '.join(f'{k} = blur {v[0]} px / noise {v[1]}'
+                                               for k, v in NOISE_LEVELS.items()) + '.',
+                  '',
+                  detection_table(noise_rows), '']
     lines += [
-        f"### Aspect matching, 2 distractors, {args.match_trials} trials at "
-        f"{match_range[0]:.1f}-{match_range[1]:.1f} m",
-        "",
+        f'### Aspect matching, 2 distractors, {args.match_trials} trials at '
+        f'{match_range[0]:.1f}-{match_range[1]:.1f} m',
+        '',
         matching_table(match_rows, [match_range]),
-        "",
-        f"Matching time: median {np.median(cpu):.3f} ms CPU ({np.median(wall):.3f} ms wall), "
-        f"p95 {np.percentile(cpu, 95):.3f} ms; lookup tables for {len(models.aspects)} "
-        f"aspects of {models.num_models} models built in {1e3 * build_s:.0f} ms.",
-        "",
+        '',
+        f'Matching time: median {np.median(cpu):.3f} ms CPU ({np.median(wall):.3f} ms wall), '
+        f'p95 {np.percentile(cpu, 95):.3f} ms; lookup tables for {len(models.aspects)} '
+        f'aspects of {models.num_models} models built in {1e3 * build_s:.0f} ms.',
+        '',
     ]
     if robot_rows:
-        elev = np.array([r["elevation"] for r in robot_rows])
-        dist = np.array([r["distance"] for r in robot_rows])
+        elev = np.array([r['elevation'] for r in robot_rows])
+        dist = np.array([r['distance'] for r in robot_rows])
         lines += [f"### Aspect matching at the robot's working pose, {len(robot_rows)} trials",
-                  "",
+                  '',
                   "The robot's head camera (`abp_description` kinematics, head panned and "
                   "tilted to the cube) with the cube 0.35-0.45 m in front of `base_link` "
                   "(the sim bridge's default 0.40 m, also the ORBIT radius): camera "
@@ -379,20 +379,20 @@ def main(argv=None):
                   "45° aspect are seen at 65-80° from their normal. Sim-bridge camera noise "
                   "(blur 0.5 px, noise σ 1), 2 distractors. A missed, grazing side tag gives "
                   "a partial hypothesis (-1 in its slot), which the belief's p_miss covers.",
-                  "",
-                  matching_table(robot_rows, [(0.0, 10.0)]).replace("| 0.0-10.0 |", "| robot |"),
-                  ""]
+                  '',
+                  matching_table(robot_rows, [(0.0, 10.0)]).replace('| 0.0-10.0 |', '| robot |'),
+                  '']
     if by_distance:
-        lines += ["### Aspect matching by distance (0.5-2.5 m)",
-                  "",
+        lines += ['### Aspect matching by distance (0.5-2.5 m)',
+                  '',
                   matching_table(by_distance, [(0.5, 1.0), (1.0, 1.5), (1.5, 2.0), (2.0, 2.5)]),
-                  ""]
-    section = "\n".join(lines)
+                  '']
+    section = '\n'.join(lines)
     print(section)
     if args.update_doc:
         update_doc(args.update_doc, section)
     return 0
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -1,6 +1,6 @@
 """Planner benchmark: the paper's simulation (Tables II and IV, Fig. 3).
 
-    ros2 run abp_planner benchmark --models 30 60 120 --trials 30 \\
+    ros2 run abp_bench planner_benchmark --models 30 60 120 --trials 30 \\
         --planners random abp --seed 0 --json out.json --plot docs/img/fig3.png
 
 Prints a Markdown table laid out like Table II (plus accuracy, Table IV, and
@@ -20,6 +20,13 @@ from tqdm import tqdm
 
 from abp_planner.planner import PLANNER_NAMES, make_planner
 from abp_planner.simulator import MAX_ACTIONS, STOP_POSTERIOR, run_trial, trial_rngs
+from abp_planner.stopping import (
+    DEFAULT_TARGET_ERROR,
+    STOP_RULES,
+    StoppingRule,
+    fault_discounted_error,
+    fault_likelihood_ratio,
+)
 
 # Published figures: Table II (object belief, entropy, actions, time) and
 # Table IV (simulated accuracy), both with alpha = 0.1.
@@ -56,8 +63,17 @@ def _worker_trial(task):
     key = (label, seed)
     if key not in _WORKER:
         ms = build_model_set(label, seed)
-        _WORKER[key] = (ms, BeliefFilter(ms))
-    ms, bf = _WORKER[key]
+        _WORKER[key] = (ms, BeliefFilter(ms), {})
+    ms, bf, rules = _WORKER[key]
+    rule_key = (options.get("stop", "error"), options.get("target_error", DEFAULT_TARGET_ERROR),
+                options.get("stop_posterior", STOP_POSTERIOR),
+                options.get("max_actions", MAX_ACTIONS), options.get("fault_margin", False))
+    if rule_key not in rules:
+        # Twin classes are computed once per model set and worker (1.4 s at 1470).
+        rules[rule_key] = StoppingRule.for_model_set(
+            ms, kind=rule_key[0], target_error=rule_key[1], stop_posterior=rule_key[2],
+            max_actions=rule_key[3], fault_margin=rule_key[4])
+    stopping = rules[rule_key]
     truth_rng, noise_rng = trial_rngs(seed, trial)
     # The random planner's own stream is per trial too, so results do not
     # depend on how trials are spread over workers.
@@ -68,9 +84,7 @@ def _worker_trial(task):
         truth_rng,
         noise_rng,
         belief_filter=bf,
-        max_actions=options.get("max_actions", MAX_ACTIONS),
-        stop_posterior=options.get("stop_posterior", STOP_POSTERIOR),
-        early_stop=options.get("early_stop", True),
+        stopping=stopping,
     )
     return label, planner_name, trial, result.as_dict()
 
@@ -83,6 +97,7 @@ def summarise(trials: list[dict]) -> dict:
     correct = np.array([t["correct"] for t in trials])
     decidable = np.array([t["decidable"] for t in trials])
     lat = np.concatenate([t["latency_ms"] for t in trials] + [np.zeros(0)])
+    depth = np.concatenate([t.get("search_depth", []) for t in trials] + [np.zeros(0)])
     return {
         "trials": len(trials),
         "obj_bel_mean": float(bel.mean()),
@@ -102,6 +117,11 @@ def summarise(trials: list[dict]) -> dict:
         "latency_ms_median": float(np.median(lat)) if lat.size else float("nan"),
         "latency_ms_p95": float(np.percentile(lat, 95)) if lat.size else float("nan"),
         "latency_ms_max": float(lat.max()) if lat.size else float("nan"),
+        "errors": int((~correct).sum()),
+        "errors_decidable": int((~correct & decidable).sum()),
+        "search_depth_mean": float(depth.mean()) if depth.size else float("nan"),
+        "stopped_as_twins": int(sum(t.get("stop_reason", "").startswith("indistinguishable")
+                                    for t in trials)),
     }
 
 
@@ -109,9 +129,10 @@ def markdown_table(summaries: dict, labels, planners) -> str:
     head = (
         "| \\|M\\| | Method | Trials | Obj. Bel. | Entropy | Actions | Time (s) | Accuracy "
         "| Paper Obj. Bel. | Paper Entropy | Paper Actions | Paper Time (s) | Paper Acc. "
-        "| Decidable: trials, accuracy, identified | Plan ms median | p95 | max |"
+        "| Decidable: trials, accuracy, identified | Plan ms median | p95 | max "
+        "| Errors (decidable) | Depth |"
     )
-    lines = [head, "|" + "---|" * 17]
+    lines = [head, "|" + "---|" * 19]
     for label in labels:
         for name in planners:
             s = summaries.get((label, name))
@@ -138,6 +159,8 @@ def markdown_table(summaries: dict, labels, planners) -> str:
                 f"{s['latency_ms_median']:.2f}",
                 f"{s['latency_ms_p95']:.2f}",
                 f"{s['latency_ms_max']:.2f}",
+                f"{s['errors']} ({s['errors_decidable']})",
+                f"{s['search_depth_mean']:.2f}",
             ]
             lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -180,9 +203,94 @@ def plot_traces(results: dict, labels, planners, path: str, max_actions: int) ->
     plt.close(fig)
 
 
+# Rules replayed by --stop-curve: thresholds on the top posterior (the old rule's
+# family) and target errors of the fault-discounted rule (stopping.py).
+CURVE_POSTERIOR_THRESHOLDS = (0.9, 0.95, 0.99, 0.999, 0.9999, 0.99999, 0.999999)
+CURVE_TARGET_ERRORS = (0.3, 0.1, 0.03, 0.01, 0.003, 0.001, 0.0003)
+
+
+def replay_stop(trial: dict, stop_step) -> tuple[int, bool]:
+    """(actions, correct) if ``stop_step(top_posterior, answer_posterior)`` (per-step
+    arrays) had stopped the trial: its first True step, else the last one."""
+    top = np.asarray(trial["top_posterior"])
+    answer = np.asarray(trial["answer_posterior"])
+    hits = np.flatnonzero(stop_step(top, answer))
+    step = int(hits[0]) if hits.size else len(top) - 1
+    return step, bool(trial["top_is_true"][step])
+
+
+def stop_curves(trials: list[dict], fault_ratio: float) -> dict:
+    """Error rate (on decidable trials) and mean actions (on all) of every replayed
+    rule on trials that ran all their actions (the ``fixed`` rule): the planner
+    does not see the stopping rule, so truncating one long trajectory is exactly
+    what each rule would do. The error rules also stop on the twin class
+    (``answer_posterior``), as ``StoppingRule`` does."""
+    rules = {
+        "posterior > t (old rule)": [
+            (t, lambda top, ans, t=t: top > t) for t in CURVE_POSTERIOR_THRESHOLDS
+        ],
+        "error rule + fault margin: e_fault <= e": [
+            (e, lambda top, ans, e=e: (fault_discounted_error(top, fault_ratio) <= e)
+             | (fault_discounted_error(ans, fault_ratio) <= e))
+            for e in CURVE_TARGET_ERRORS
+        ],
+        "error rule: 1 - posterior <= e": [
+            (e, lambda top, ans, e=e: (1.0 - top <= e) | (1.0 - ans <= e))
+            for e in CURVE_TARGET_ERRORS
+        ],
+    }
+    decidable = np.array([t["decidable"] for t in trials])
+    curves = {}
+    for family, members in rules.items():
+        points = []
+        for parameter, rule in members:
+            outcomes = [replay_stop(t, rule) for t in trials]
+            actions = np.array([o[0] for o in outcomes], dtype=float)
+            errors = np.array([not o[1] for o in outcomes]) & decidable
+            points.append({"parameter": parameter, "actions_mean": float(actions.mean()),
+                           "error_rate": float(errors.sum() / max(decidable.sum(), 1)),
+                           "errors": int(errors.sum()), "decidable": int(decidable.sum())})
+        curves[family] = points
+    return curves
+
+
+def plot_stop_curves(all_curves: dict, path: str, trials: int) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(all_curves)
+    fig, axes = plt.subplots(1, len(keys), figsize=(4.4 * len(keys), 4.0), squeeze=False,
+                             sharey=True)
+    floor = 0.5 / trials  # zero errors drawn half a trial below one error
+    for ax, key in zip(axes[0], keys):
+        for (family, points), marker in zip(all_curves[key].items(), "osx^"):
+            x = [p["actions_mean"] for p in points]
+            y = [max(p["error_rate"], floor) for p in points]
+            ax.plot(x, y, marker=marker, label=family, alpha=0.8)
+            if family.startswith("posterior"):  # label the old rule's thresholds
+                for p, xi, yi in zip(points, x, y):
+                    ax.annotate(f"{p['parameter']:g}", (xi, yi), fontsize=6,
+                                textcoords="offset points", xytext=(2, 5))
+        ax.set_yscale("log")
+        ax.set_ylim(floor / 1.6, 0.2)
+        ax.axhline(0.003, color="grey", lw=0.8, ls="--")
+        ax.axhline(floor, color="grey", lw=0.5, ls=":")
+        decidable = next(iter(all_curves[key].values()))[0].get("decidable", trials)
+        ax.set_title(f"|M| = {key[0]}, {key[1]} ({decidable} decidable)", fontsize=9)
+        ax.set_xlabel("mean actions to the stop")
+        ax.grid(alpha=0.3, which="both")
+    axes[0][0].set_ylabel("error rate on decidable trials\n(dotted: no error; dashed: 0.3 %)")
+    axes[0][-1].legend(loc="upper right", fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def parse_args(argv):
     p = argparse.ArgumentParser(
-        prog="benchmark",
+        prog="planner_benchmark",
         description="Model-sampled simulation of the Active Belief Planner (paper Tables II/IV).",
     )
     p.add_argument("--models", nargs="+", default=["30", "60", "120"], choices=MODEL_SET_CHOICES,
@@ -193,11 +301,26 @@ def parse_args(argv):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--alpha", type=float, default=0.1, help="Alg. 3 expansion threshold")
     p.add_argument("--max-actions", type=int, default=MAX_ACTIONS)
+    p.add_argument("--stop", choices=STOP_RULES, default="error",
+                   help="stopping rule (abp_planner.stopping): 'error' = fault-discounted "
+                   "P(wrong) <= --target-error (default), 'posterior' = top posterior > "
+                   "--stop-posterior (the old rule), 'fixed' = all --max-actions actions")
+    p.add_argument("--target-error", type=float, default=DEFAULT_TARGET_ERROR,
+                   help="target error of --stop error")
+    p.add_argument("--fault-margin", action="store_true",
+                   help="--stop error: discount P(wrong) for one unexpected false tag")
     p.add_argument("--stop-posterior", type=float, default=STOP_POSTERIOR)
     p.add_argument("--no-early-stop", action="store_true",
-                   help="run all --max-actions actions (paper: 'simulated for 30 actions'); "
-                   "actions and time still count up to the first time the top posterior "
-                   "exceeds --stop-posterior, belief/entropy/accuracy are taken at the end")
+                   help="same as --stop fixed: run all --max-actions actions (paper: "
+                   "'simulated for 30 actions'); actions and time count up to the first time "
+                   "the true object's posterior exceeds --stop-posterior, belief/entropy/"
+                   "accuracy are taken at the end")
+    p.add_argument("--planning-budget-s", type=float, default=None,
+                   help="planning-time budget per decision for abp2/abp3/cost (anytime "
+                   "iterative deepening); default unbounded")
+    p.add_argument("--stop-curve",
+                   help="with --stop fixed: replay stopping rules on the full trajectories and "
+                   "write error rate vs mean actions (PNG) here")
     p.add_argument("--tie-tolerance", type=float, default=None,
                    help="expected gains closer than this (bits) are ties, resolved towards the "
                    "shorter action (default: the planner's, 1e-3)")
@@ -211,6 +334,12 @@ def parse_args(argv):
         p.error("--alpha must be in [0, 1]")
     if args.jobs < 1:
         p.error("--jobs must be >= 1")
+    if args.no_early_stop:
+        args.stop = "fixed"
+    if args.stop_curve and args.stop != "fixed":
+        p.error("--stop-curve needs --stop fixed (trajectories of all --max-actions actions)")
+    if args.planning_budget_s is not None and not args.planning_budget_s > 0:
+        p.error("--planning-budget-s must be > 0")
     return args
 
 
@@ -220,8 +349,11 @@ def main(argv=None) -> int:
         "alpha": args.alpha,
         "max_actions": args.max_actions,
         "stop_posterior": args.stop_posterior,
-        "early_stop": not args.no_early_stop,
+        "stop": args.stop,
+        "target_error": args.target_error,
+        "fault_margin": args.fault_margin,
         "tie_tolerance": args.tie_tolerance,
+        "planning_budget_s": args.planning_budget_s,
     }
     tasks = [
         (label, name, trial, args.seed, options)
@@ -251,7 +383,19 @@ def main(argv=None) -> int:
     summaries = {key: summarise(trials) for key, trials in results.items()}
     print(markdown_table(summaries, args.models, args.planners))
     print(f"\n({len(tasks)} trials in {time.perf_counter() - start:.1f} s wall, seed {args.seed}, "
-          f"alpha {args.alpha})")
+          f"alpha {args.alpha}, stop {args.stop}, target error {args.target_error:g}"
+          f"{' with fault margin' if args.fault_margin else ''}, "
+          f"planning budget {args.planning_budget_s} s)")
+    curves = {}
+    if args.stop_curve:
+        ratio = fault_likelihood_ratio()
+        curves = {key: stop_curves(trials, ratio) for key, trials in results.items()}
+        for key, families in curves.items():
+            for family, points in families.items():
+                cells = ", ".join(f"{q['parameter']:g}: {q['actions_mean']:.2f} act, "
+                                  f"{q['errors']} err" for q in points)
+                print(f"|M|={key[0]} {key[1]} {family}: {cells}")
+        plot_stop_curves(curves, args.stop_curve, args.trials)
     if args.json:
         with open(args.json, "w") as f:
             json.dump(
@@ -259,6 +403,9 @@ def main(argv=None) -> int:
                     "config": vars(args),
                     "summaries": [
                         {"models": k[0], "planner": k[1], **v} for k, v in summaries.items()
+                    ],
+                    "stop_curves": [
+                        {"models": k[0], "planner": k[1], "curves": v} for k, v in curves.items()
                     ],
                     "trials": [
                         {"models": k[0], "planner": k[1], **t}

@@ -28,7 +28,7 @@ from abp_sim_bridge.flat_renderer import (
     tag_object_points,
 )
 
-__all__ = ["Scene", "SceneGenerator", "TruthTag", "default_camera"]
+__all__ = ['Scene', 'SceneGenerator', 'TruthTag', 'default_camera']
 
 BORDER_MARGIN_PX = 3.0      # ArUco's default minDistanceToBorder
 DEFAULT_K = np.array([[554.256, 0.0, 319.5], [0.0, 554.256, 239.5], [0.0, 0.0, 1.0]])
@@ -82,7 +82,7 @@ class SceneGenerator:
     """Renders ARcube scenes with the sim bridge's renderer and records the truth."""
 
     def __init__(self, K=None, width=None, height=None, effects=None, cube_size=0.10,
-                 tag_size=0.08, encoding="mono8", supersample=4, seed=0):
+                 tag_size=0.08, encoding='mono8', supersample=4, seed=0):
         if K is None:
             K, w0, h0 = default_camera()
             width = width or w0

@@ -22,33 +22,33 @@ def one_cv_thread():
 
 
 def test_filter_benchmark(capsys):
-    assert filter_benchmark.main(["--repeats", "2"]) == 0
-    assert "| full n=7 | 1470 |" in capsys.readouterr().out
+    assert filter_benchmark.main(['--repeats', '2']) == 0
+    assert '| full n=7 | 1470 |' in capsys.readouterr().out
 
 
 def test_planner_benchmark_with_json_and_plot(capsys, tmp_path):
-    out_json, plot = tmp_path / "out.json", tmp_path / "fig.png"
-    assert planner_benchmark.main(["--models", "30", "--trials", "1", "--planners", "random",
-                                   "abp", "--json", str(out_json), "--plot", str(plot)]) == 0
-    assert "| 30 | abp | 1 |" in capsys.readouterr().out
+    out_json, plot = tmp_path / 'out.json', tmp_path / 'fig.png'
+    assert planner_benchmark.main(['--models', '30', '--trials', '1', '--planners', 'random',
+                                   'abp', '--json', str(out_json), '--plot', str(plot)]) == 0
+    assert '| 30 | abp | 1 |' in capsys.readouterr().out
     assert json.loads(out_json.read_text()) and plot.stat().st_size > 0
 
 
 def test_skills_benchmark(capsys):
-    assert skills_benchmark.main(["--repeats", "1"]) == 0
-    assert "Feasibility of all 8 actions" in capsys.readouterr().out
+    assert skills_benchmark.main(['--repeats', '1']) == 0
+    assert 'Feasibility of all 8 actions' in capsys.readouterr().out
 
 
 def test_sim_bridge_benchmark_in_process(capsys, one_cv_thread):
-    assert sim_bridge_benchmark.main(["--no-node"]) == 0
-    assert "simulation tick" in capsys.readouterr().out
+    assert sim_bridge_benchmark.main(['--no-node']) == 0
+    assert 'simulation tick' in capsys.readouterr().out
 
 
 def test_graph_benchmark_summary_table():
-    args = graph_benchmark.parse_args(["--episodes", "2"])
+    args = graph_benchmark.parse_args(['--episodes', '2'])
     results = [dict(correct=True, hung=False, actions=2, elapsed_s=40.0, wall_s=9.0),
                dict(correct=False, hung=True, wall_s=30.0)]
     table = graph_benchmark.summarise(results, [12.0, 14.0], [5.0], args)
-    assert "| correct | 1/2 (50.0 %) |" in table
-    assert "| mean actions | 2.00 |" in table
-    assert "robot models, planner abp, without fault injection" in table
+    assert '| correct | 1/2 (50.0 %) |' in table
+    assert '| mean actions | 2.00 |' in table
+    assert 'robot models, planner abp, without fault injection' in table

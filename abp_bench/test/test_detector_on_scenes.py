@@ -17,10 +17,10 @@ def angle_deg(a, b):
 
 # -- detection on rendered scenes -----------------------------------------------------------
 
-@pytest.mark.parametrize("state, distance", [(32, 1.0), (33, 1.0), (0, 0.7), (13, 1.5)])
+@pytest.mark.parametrize('state, distance', [(32, 1.0), (33, 1.0), (0, 0.7), (13, 1.5)])
 def test_rendered_cube_tags_found_with_accurate_poses(scenes, detector, state, distance):
     scene = scenes.render(FACES, state, distance=distance, elevation_deg=35.0)
-    result = detector.detect(scene.image).in_frame(scene.camera_pose, "base_link")
+    result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
     expected = {t.tag_id: t for t in scene.expected(max_view_angle_deg=70.0)}
     found = {d.tag_id: d for d in result.detections}
     assert set(expected) <= set(found), (expected.keys(), found.keys())
@@ -30,7 +30,7 @@ def test_rendered_cube_tags_found_with_accurate_poses(scenes, detector, state, d
         err = np.linalg.norm(det.position - truth.centre)
         assert err < 0.004 * distance ** 2 + 0.002, (tag_id, err)
         assert angle_deg(det.normal, truth.normal) < 5.0
-        assert det.frame == "base_link"
+        assert det.frame == 'base_link'
         assert np.all(np.linalg.eigvalsh(det.covariance) > 0)
         assert 0.5 < det.confidence <= 1.0
         assert det.reprojection_error < 0.5
@@ -40,7 +40,7 @@ def test_face_centre_error_at_1m_is_millimetres(scenes, detector):
     errors = []
     for state in range(0, 48, 5):
         scene = scenes.render(FACES, state, distance=1.0, elevation_deg=35.0)
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, "world")
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'world')
         truth = {t.tag_id: t for t in scene.tags}
         errors += [np.linalg.norm(d.position - truth[d.tag_id].centre)
                    for d in result.detections if d.tag_id in truth]

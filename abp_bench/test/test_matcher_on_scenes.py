@@ -17,7 +17,7 @@ def observe(scenes, detector, faces, state, distance=1.0, elevation=35.0, yaw_er
     scene = scenes.render(faces, state, distance=distance, elevation_deg=elevation,
                           yaw_error_deg=yaw_error, distractors=distractors,
                           look_offset=look_offset)
-    result = detector.detect(scene.image).in_frame(scene.camera_pose, "base_link")
+    result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
     return scene, features_from_detections(result.detections)
 
 
@@ -36,7 +36,7 @@ def upright_tag(tag_id, x, y):
     return Distractor(tag_id, pose, 0.08)
 
 
-@pytest.mark.parametrize("model, state", [(0, 32), (0, 33), (17, 5), (300, 14), (911, 46),
+@pytest.mark.parametrize('model, state', [(0, 32), (0, 33), (17, 5), (300, 14), (911, 46),
                                           (1469, 23), (640, 7)])
 def test_rendered_states_give_their_aspect(full_models, full_matcher, scenes, detector,
                                            model, state):
@@ -144,6 +144,6 @@ def test_robot_working_pose_grazing_side_faces(full_models, full_matcher, detect
     for state in (1, 3, 5, 7, 10, 19, 28, 45):
         scene, _ = gen.render_robot(kin, faces, state, [0.40, 0.03, 0.05], yaw_error_deg=-3.0)
         assert 55 < scene.elevation_deg < 70
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, "base_link")
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
         best = full_matcher.match(features_from_detections(result.detections)).best
         assert best is not None and best.key == cube.aspect_of(faces, state), state

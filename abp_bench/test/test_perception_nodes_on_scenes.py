@@ -8,10 +8,10 @@ import time
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
-if not hasattr(pytest.importorskip("abp_msgs.msg"), "AspectObservation"):
-    pytest.skip("abp_msgs is not built: run scripts/bootstrap.sh and source scripts/env.sh",
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
+if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
+    pytest.skip('abp_msgs is not built: run scripts/bootstrap.sh and source scripts/env.sh',
                 allow_module_level=True)
 
 from builtin_interfaces.msg import Time  # noqa: E402
@@ -33,29 +33,29 @@ HEAD_TILT = 0.6
 
 
 def executable(name):
-    prefix = ament_index.get_package_prefix("abp_perception")
-    return os.path.join(prefix, "lib", "abp_perception", name)
+    prefix = ament_index.get_package_prefix('abp_perception')
+    return os.path.join(prefix, 'lib', 'abp_perception', name)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def world():
     kin = RobotKinematics()
     q = kin.neutral()
-    q[kin.joint_index("head_tilt_joint")] = HEAD_TILT
+    q[kin.joint_index('head_tilt_joint')] = HEAD_TILT
     cam = camera_intrinsics()
     gen = SceneGenerator(cam.K, cam.width, cam.height, seed=5)
     return kin, q, cam, gen, robot_set(seed=SEED)
 
 
 def camera_info_msg(cam):
-    msg = CameraInfo(width=cam.width, height=cam.height, distortion_model="plumb_bob",
+    msg = CameraInfo(width=cam.width, height=cam.height, distortion_model='plumb_bob',
                      k=[float(v) for v in cam.K.ravel()], d=[float(v) for v in cam.D])
     msg.header.frame_id = cam.frame_id
     return msg
 
 
 def mono8_msg(gray, frame_id, stamp):
-    msg = Image(height=gray.shape[0], width=gray.shape[1], encoding="mono8",
+    msg = Image(height=gray.shape[0], width=gray.shape[1], encoding='mono8',
                 step=gray.shape[1], data=gray.tobytes())
     msg.header.frame_id, msg.header.stamp = frame_id, stamp
     return msg
@@ -63,7 +63,7 @@ def mono8_msg(gray, frame_id, stamp):
 
 @pytest.fixture
 def tester(rclpy_context):
-    node = rclpy.create_node("perception_scene_tester", context=rclpy_context)
+    node = rclpy.create_node('perception_scene_tester', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     yield node, executor
@@ -74,9 +74,9 @@ def tester(rclpy_context):
 def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester, spin,
                                                             world):
     kin, q, cam, gen, models = world
-    ros_processes.start([executable("artag_detector")])
-    ros_processes.start([executable("aspect_matcher"), "--ros-args", "-p", "model_set:=robot",
-                         "-p", f"seed:={SEED}"])
+    ros_processes.start([executable('artag_detector')])
+    ros_processes.start([executable('aspect_matcher'), '--ros-args', '-p', 'model_set:=robot',
+                         '-p', f'seed:={SEED}'])
     node, executor = tester
     observations, detections = [], []
     node.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
@@ -88,12 +88,12 @@ def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester
     joint_pub = node.create_publisher(JointState, names.JOINT_STATES, qos.RELIABLE)
     assert spin(executor, lambda: image_pub.get_subscription_count() > 0
                 and joint_pub.get_subscription_count() > 0
-                and info_pub.get_subscription_count() > 0, 30), "detector did not come up"
+                and info_pub.get_subscription_count() > 0, 30), 'detector did not come up'
     # The matcher is up when it subscribes to the detections and publishes observations:
     # graph events, so the first frame is not spent on discovery.
     assert spin(executor, lambda: node.count_subscribers(names.TAG_DETECTIONS) >= 2
                 and node.count_publishers(names.ASPECT_OBSERVATION) >= 1, 60), \
-        "aspect matcher did not come up"
+        'aspect matcher did not come up'
     # Two cases with the head tilted 0.6 rad to a cube 1 m away, one at the sim bridge's
     # default cube pose (0.40 m in front, head tilted ~1.1 rad).
     near_q, _ = look_at(kin, kin.neutral(), NEAR_CUBE_CENTRE)
@@ -122,11 +122,11 @@ def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester
         deadline = time.monotonic() + 60.0
         while not publish_until_observed():
             assert time.monotonic() < deadline, \
-                f"no aspect observation for model {model} state {state}"
+                f'no aspect observation for model {model} state {state}'
         obs = [o for o in observations if o.header.stamp == stamp][0]
         det = [d for d in detections if d.header.stamp == stamp][0]
         expected = cube.aspect_of(faces, state)
-        assert det.header.frame_id == "base_link"
+        assert det.header.frame_id == 'base_link'
         assert det.camera_frame_id == cam.frame_id
         assert sorted(d.id for d in det.detections) == sorted(expected[1:1 + expected[0]])
         for d in det.detections:
@@ -135,7 +135,7 @@ def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester
             assert np.linalg.norm([p.x - truth.centre[0], p.y - truth.centre[1],
                                    p.z - truth.centre[2]]) < 0.01
             assert np.all(np.linalg.eigvalsh(np.reshape(d.pose.covariance, (6, 6))) > 0)
-        assert obs.header.frame_id == "base_link"
+        assert obs.header.frame_id == 'base_link'
         assert len(obs.features) == len(det.detections)
         best = obs.hypotheses[0]
         assert (best.aspect_type, *best.slots) == expected

@@ -23,36 +23,36 @@ from abp_common.param_spec import BOOL, STRING, STRING_ARRAY, ParamSpec
 # The graph's topics (relative names) and types; images are large and recorded only
 # on request.
 GRAPH_TOPICS = {
-    names.TAG_DETECTIONS: "abp_msgs/msg/TagDetectionArray",
-    names.ASPECT_OBSERVATION: "abp_msgs/msg/AspectObservation",
-    names.BELIEF: "abp_msgs/msg/Belief",
-    names.EXECUTED_ACTION: "abp_msgs/msg/ExecutedAction",
-    names.PLAN: "abp_msgs/msg/PlanStep",
-    names.GROUND_TRUTH: "abp_msgs/msg/SimGroundTruth",
-    names.JOINT_STATES: "sensor_msgs/msg/JointState",
-    names.ODOM: "nav_msgs/msg/Odometry",
-    names.CAMERA_INFO: "sensor_msgs/msg/CameraInfo",
+    names.TAG_DETECTIONS: 'abp_msgs/msg/TagDetectionArray',
+    names.ASPECT_OBSERVATION: 'abp_msgs/msg/AspectObservation',
+    names.BELIEF: 'abp_msgs/msg/Belief',
+    names.EXECUTED_ACTION: 'abp_msgs/msg/ExecutedAction',
+    names.PLAN: 'abp_msgs/msg/PlanStep',
+    names.GROUND_TRUTH: 'abp_msgs/msg/SimGroundTruth',
+    names.JOINT_STATES: 'sensor_msgs/msg/JointState',
+    names.ODOM: 'nav_msgs/msg/Odometry',
+    names.CAMERA_INFO: 'sensor_msgs/msg/CameraInfo',
 }
-IMAGE_TOPICS = {names.IMAGE: "sensor_msgs/msg/Image"}
+IMAGE_TOPICS = {names.IMAGE: 'sensor_msgs/msg/Image'}
 LATCHED_TOPICS = {names.BELIEF, names.GROUND_TRUTH}
 SENSOR_TOPICS = {names.IMAGE, names.CAMERA_INFO}
-STORAGE = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
 # The bag_recorder node's parameters (declared with abp_common.parameters.declare_all).
 RECORDER_SPECS = (
-    ParamSpec("output", STRING, "", "Directory of the new bag (must not exist).",
+    ParamSpec('output', STRING, '', 'Directory of the new bag (must not exist).',
               read_only=True),
-    ParamSpec("topics", STRING_ARRAY, None, "Topics to record, relative (resolved in the "
+    ParamSpec('topics', STRING_ARRAY, None, "Topics to record, relative (resolved in the "
               "recorder's namespace) or absolute; empty = the graph's topics (see "
               "abp_bringup.bag).", read_only=True),
-    ParamSpec("record_images", BOOL, False, f"Also record {names.IMAGE} (large).",
+    ParamSpec('record_images', BOOL, False, f'Also record {names.IMAGE} (large).',
               read_only=True),
-    ParamSpec("storage", STRING, "mcap", "rosbag2 storage.", read_only=True,
+    ParamSpec('storage', STRING, 'mcap', 'rosbag2 storage.', read_only=True,
               choices=tuple(STORAGE)),
 )
 
 
-def graph_topics(namespace="", images=False):
+def graph_topics(namespace='', images=False):
     """{absolute topic: msgtype} of the graph's topics under `namespace`."""
     topics = {**GRAPH_TOPICS, **(IMAGE_TOPICS if images else {})}
     return {names.absolute(name, namespace): msgtype for name, msgtype in topics.items()}
@@ -62,12 +62,12 @@ def graph_name(topic):
     """The graph's (relative) name that the absolute `topic` resolves, in any namespace;
     '' for a topic that is not the graph's."""
     for name in (*GRAPH_TOPICS, *IMAGE_TOPICS):
-        if topic == name or topic.endswith("/" + name):
+        if topic == name or topic.endswith('/' + name):
             return name
-    return ""
+    return ''
 
 
-def recorded_topics(wanted=(), record_images=False, namespace=""):
+def recorded_topics(wanted=(), record_images=False, namespace=''):
     """{absolute topic: msgtype} a recorder in `namespace` records: the `wanted` topics
     (relative names resolved in the namespace), else the graph's topics."""
     known = graph_topics(namespace, images=True)
@@ -89,20 +89,20 @@ def abp_msgs_dir():
     """The installed abp_msgs share directory (ament index), or the source tree."""
     try:
         from ament_index_python.packages import get_package_share_directory
-        return pathlib.Path(get_package_share_directory("abp_msgs"))
+        return pathlib.Path(get_package_share_directory('abp_msgs'))
     except (ImportError, LookupError):
-        return pathlib.Path(__file__).resolve().parents[2] / "abp_msgs"
+        return pathlib.Path(__file__).resolve().parents[2] / 'abp_msgs'
 
 
 def typestore():
     """Jazzy's standard types plus every abp_msgs message."""
     store = get_typestore(Stores.ROS2_JAZZY)
     types = {}
-    msg_dir = abp_msgs_dir() / "msg"
-    for path in sorted(msg_dir.glob("*.msg")):
-        types.update(get_types_from_msg(path.read_text(), f"abp_msgs/msg/{path.stem}"))
+    msg_dir = abp_msgs_dir() / 'msg'
+    for path in sorted(msg_dir.glob('*.msg')):
+        types.update(get_types_from_msg(path.read_text(), f'abp_msgs/msg/{path.stem}'))
     if not types:
-        raise BagError(f"no abp_msgs message definitions found in {msg_dir}")
+        raise BagError(f'no abp_msgs message definitions found in {msg_dir}')
     store.register(types)
     return store
 
@@ -110,11 +110,11 @@ def typestore():
 class BagWriter:
     """Writes serialized messages to a new rosbag2 bag (the path must not exist)."""
 
-    def __init__(self, path, topics, storage="mcap", store=None):
+    def __init__(self, path, topics, storage='mcap', store=None):
         path = pathlib.Path(path)
         if path.exists():
-            raise BagError(f"bag {path} already exists: choose a new directory "
-                           "(rosbag2 never overwrites a bag)")
+            raise BagError(f'bag {path} already exists: choose a new directory '
+                           '(rosbag2 never overwrites a bag)')
         if storage not in STORAGE:
             raise BagError(f"storage {storage!r} unknown: use one of {', '.join(STORAGE)}")
         self.store = store or typestore()
@@ -141,19 +141,19 @@ def bag_topics(path):
     """{topic: msgtype} of every connection in the bag."""
     path = pathlib.Path(path)
     if not path.exists():
-        raise BagError(f"bag {path} does not exist")
+        raise BagError(f'bag {path} does not exist')
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
             return {c.topic: c.msgtype for c in reader.connections}
     except Exception as error:
-        raise BagError(f"cannot read bag {path}: {error}") from error
+        raise BagError(f'cannot read bag {path}: {error}') from error
 
 
 def read_bag(path, topics=None):
     """Yield (topic, msgtype, timestamp_ns, serialized bytes) in time order."""
     path = pathlib.Path(path)
     if not path.exists():
-        raise BagError(f"bag {path} does not exist")
+        raise BagError(f'bag {path} does not exist')
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
             connections = [c for c in reader.connections if topics is None or c.topic in topics]
@@ -162,7 +162,7 @@ def read_bag(path, topics=None):
     except BagError:
         raise
     except Exception as error:  # rosbags raises several types for unreadable bags
-        raise BagError(f"cannot read bag {path}: {error}") from error
+        raise BagError(f'cannot read bag {path}: {error}') from error
 
 
 def deserialize(store, data, msgtype):

@@ -28,20 +28,20 @@ from .bag_recorder_node import message_class, topic_qos
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="bag_player", description=__doc__.split("\n\n")[0])
-    parser.add_argument("bag", help="bag directory")
-    parser.add_argument("--topics", nargs="*", default=None, help="topics to replay (default all)")
+    parser = argparse.ArgumentParser(prog='bag_player', description=__doc__.split('\n\n')[0])
+    parser.add_argument('bag', help='bag directory')
+    parser.add_argument('--topics', nargs='*', default=None, help='topics to replay (default all)')
     timing = parser.add_mutually_exclusive_group()
-    timing.add_argument("--rate", type=float, default=1.0, help="time scale (1 = as recorded)")
-    timing.add_argument("--fast", action="store_true", help="as fast as possible")
-    parser.add_argument("--wait-for", nargs="*", default=[], metavar="TOPIC",
-                        help="wait until these topics have a subscriber")
-    parser.add_argument("--wait-timeout", type=float, default=30.0)
-    parser.add_argument("--gap", type=float, default=0.002,
-                        help="seconds between messages with --fast (lets DDS deliver in order)")
+    timing.add_argument('--rate', type=float, default=1.0, help='time scale (1 = as recorded)')
+    timing.add_argument('--fast', action='store_true', help='as fast as possible')
+    parser.add_argument('--wait-for', nargs='*', default=[], metavar='TOPIC',
+                        help='wait until these topics have a subscriber')
+    parser.add_argument('--wait-timeout', type=float, default=30.0)
+    parser.add_argument('--gap', type=float, default=0.002,
+                        help='seconds between messages with --fast (lets DDS deliver in order)')
     args = parser.parse_args(argv)
     if args.rate <= 0:
-        parser.error("--rate must be > 0")
+        parser.error('--rate must be > 0')
     return args
 
 
@@ -64,9 +64,9 @@ def play(publishers, messages, rate, fast, gap):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = parse_args(remove_ros_args(["bag_player", *argv])[1:])
-    rclpy.init(args=["bag_player", *argv])
-    node = rclpy.create_node("bag_player")
+    args = parse_args(remove_ros_args(['bag_player', *argv])[1:])
+    rclpy.init(args=['bag_player', *argv])
+    node = rclpy.create_node('bag_player')
     namespace = node.get_namespace()
     args.topics = [names.absolute(t, namespace) for t in args.topics or ()]
     args.wait_for = [names.absolute(t, namespace) for t in args.wait_for]
@@ -85,20 +85,20 @@ def main(argv=None):
         deadline = time.monotonic() + args.wait_timeout
         for topic in args.wait_for:
             if topic not in publishers:
-                raise BagError(f"--wait-for {topic}: not a replayed topic")
+                raise BagError(f'--wait-for {topic}: not a replayed topic')
             while publishers[topic].get_subscription_count() == 0:
                 if time.monotonic() > deadline:
-                    print(f"[bag_player] no subscriber on {topic} within {args.wait_timeout} s",
+                    print(f'[bag_player] no subscriber on {topic} within {args.wait_timeout} s',
                           file=sys.stderr)
                     return 1
                 time.sleep(0.05)
         count = play(publishers, read_bag(args.bag, list(topics)), args.rate, args.fast,
                      args.gap)
         time.sleep(0.5)  # let reliable DDS deliver the tail before the node goes away
-        print(f"[bag_player] replayed {count} messages from {args.bag}")
+        print(f'[bag_player] replayed {count} messages from {args.bag}')
         return 0
     except BagError as error:
-        print(f"[bag_player] {error}", file=sys.stderr)
+        print(f'[bag_player] {error}', file=sys.stderr)
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         return 130
@@ -107,5 +107,5 @@ def main(argv=None):
         rclpy.try_shutdown()
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

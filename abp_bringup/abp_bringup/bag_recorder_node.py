@@ -32,8 +32,8 @@ EVENT_DEPTH = 100
 
 
 def message_class(msgtype):
-    package, kind, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    package, kind, name = msgtype.split('/')
+    return getattr(importlib.import_module(f'{package}.{kind}'), name)
 
 
 def topic_qos(topic):
@@ -48,14 +48,14 @@ def topic_qos(topic):
 
 class BagRecorder(Node):
     def __init__(self):
-        super().__init__("bag_recorder")
+        super().__init__('bag_recorder')
         values = declare_all(self, RECORDER_SPECS)
-        output = values["output"]
+        output = values['output']
         if not output:
-            raise ValueError("parameter output (the bag directory) is required")
-        topics = recorded_topics(values["topics"], values["record_images"],
+            raise ValueError('parameter output (the bag directory) is required')
+        topics = recorded_topics(values['topics'], values['record_images'],
                                  self.get_namespace())
-        self.writer = BagWriter(output, topics, values["storage"])
+        self.writer = BagWriter(output, topics, values['storage'])
         # DDS matches each subscription to its publishers some time after this, so
         # the first message per topic is logged: it says that topic is being recorded.
         self._topics_heard = set()
@@ -63,24 +63,24 @@ class BagRecorder(Node):
             self.create_subscription(message_class(msgtype), topic,
                                      lambda data, t=topic: self._write(t, data),
                                      topic_qos(topic), raw=True)
-        self.get_logger().info(f"recording {len(topics)} topics to {output}")
+        self.get_logger().info(f'recording {len(topics)} topics to {output}')
 
     def _write(self, topic, data):
         self.writer.write(topic, self.get_clock().now().nanoseconds, data)
         if topic not in self._topics_heard:
             self._topics_heard.add(topic)
-            self.get_logger().info(f"first message on {topic}")
+            self.get_logger().info(f'first message on {topic}')
 
     def close(self):
         self.writer.close()
-        self.get_logger().info(f"bag closed with {self.writer.count} messages")
+        self.get_logger().info(f'bag closed with {self.writer.count} messages')
 
 
 def main(args=None):
     # An unclosed MCAP bag loses its index: always close it.
-    return run_node("bag_recorder", BagRecorder, args, config_errors=(BagError,),
+    return run_node('bag_recorder', BagRecorder, args, config_errors=(BagError,),
                     on_exit=BagRecorder.close)
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -28,29 +28,29 @@ from abp_msgs.action import Recognize
 from abp_msgs.msg import Belief, ExecutedAction, PlanStep, SimGroundTruth
 
 TRACE_DEPTH = 50
-STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: "succeeded", GoalStatus.STATUS_ABORTED: "aborted",
-                GoalStatus.STATUS_CANCELED: "cancelled"}
+STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: 'succeeded', GoalStatus.STATUS_ABORTED: 'aborted',
+                GoalStatus.STATUS_CANCELED: 'cancelled'}
 
 
 def parse_args(argv):
-    parser = argparse.ArgumentParser(prog="recognize", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--planner", default="", help="random, abp, abp2, abp3 or cost "
+    parser = argparse.ArgumentParser(prog='recognize', description=__doc__.split('\n\n')[0])
+    parser.add_argument('--planner', default='', help="random, abp, abp2, abp3 or cost "
                         "(default: the planner node's parameter)")
-    parser.add_argument("--max-actions", type=int, default=0)
-    parser.add_argument("--threshold", type=float, default=0.0)
-    parser.add_argument("--result-json", default="")
-    parser.add_argument("--timeout", type=float, default=1800.0,
-                        help="wall-clock seconds before the goal is cancelled")
-    parser.add_argument("--wait", type=float, default=120.0,
-                        help="seconds to wait for the graph (the Recognize server)")
+    parser.add_argument('--max-actions', type=int, default=0)
+    parser.add_argument('--threshold', type=float, default=0.0)
+    parser.add_argument('--result-json', default='')
+    parser.add_argument('--timeout', type=float, default=1800.0,
+                        help='wall-clock seconds before the goal is cancelled')
+    parser.add_argument('--wait', type=float, default=120.0,
+                        help='seconds to wait for the graph (the Recognize server)')
     args = parser.parse_args(argv)
     if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0:
-        parser.error("--max-actions must be >= 0 and --threshold in [0, 1)")
+        parser.error('--max-actions must be >= 0 and --threshold in [0, 1)')
     return args
 
 
 def top_beliefs(belief, count=3):
-    return ", ".join(f"{oid} {p:.3f}" for oid, p in
+    return ', '.join(f'{oid} {p:.3f}' for oid, p in
                      zip(belief.object_ids[:count], belief.probabilities))
 
 
@@ -70,25 +70,25 @@ class Tracer:
 
     def on_plan(self, msg):
         gain = msg.expected_information_gain
-        scored = f"expected IG {gain:6.3f} bits" if math.isfinite(gain) else \
-            f"({msg.planner_mode}: no IG scored)"
-        line = f"plan      {msg.action:<10} {scored}"
+        scored = f'expected IG {gain:6.3f} bits' if math.isfinite(gain) else \
+            f'({msg.planner_mode}: no IG scored)'
+        line = f'plan      {msg.action:<10} {scored}'
         refused = [a for a, ok in zip(msg.candidate_actions, msg.candidate_feasible) if not ok]
         if refused:
             line += f"  (infeasible: {', '.join(refused)})"
         print(line, flush=True)
 
     def on_executed(self, msg):
-        outcome = "done" if msg.success else f"FAILED: {msg.reason}"
+        outcome = 'done' if msg.success else f'FAILED: {msg.reason}'
         duration = msg.duration.sec + msg.duration.nanosec * 1e-9
-        print(f"action {msg.sequence:<3}{msg.action:<10} {outcome} ({duration:.1f} s)",
+        print(f'action {msg.sequence:<3}{msg.action:<10} {outcome} ({duration:.1f} s)',
               flush=True)
 
     def on_belief(self, msg):
         self.belief = msg
         if msg.object_ids:
-            print(f"belief    step {msg.step:<3} H {msg.entropy:6.3f} bits  top: "
-                  f"{top_beliefs(msg)}", flush=True)
+            print(f'belief    step {msg.step:<3} H {msg.entropy:6.3f} bits  top: '
+                  f'{top_beliefs(msg)}', flush=True)
 
     def on_truth(self, msg):
         self.ground_truth = msg
@@ -103,17 +103,17 @@ def spin_until(node, predicate, timeout):
 
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = parse_args(remove_ros_args(["recognize", *argv])[1:])
-    rclpy.init(args=["recognize", *argv])
-    node = rclpy.create_node("recognize_client")
+    args = parse_args(remove_ros_args(['recognize', *argv])[1:])
+    rclpy.init(args=['recognize', *argv])
+    node = rclpy.create_node('recognize_client')
     tracer = Tracer(node)
     client = ActionClient(node, Recognize, names.RECOGNIZE)
     server = names.absolute(names.RECOGNIZE, node.get_namespace())
     handle = None
     try:
         if not spin_until(node, client.server_is_ready, args.wait):
-            print(f"[recognize] no {server} server within {args.wait:.0f} s: is the "
-                  "planner running?", file=sys.stderr)
+            print(f'[recognize] no {server} server within {args.wait:.0f} s: is the '
+                  'planner running?', file=sys.stderr)
             return 1
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
                               posterior_threshold=args.threshold)
@@ -121,13 +121,13 @@ def main(argv=None):
         spin_until(node, sent.done, 30.0)
         handle = sent.result() if sent.done() else None
         if handle is None or not handle.accepted:
-            print("[recognize] goal rejected (unknown planner mode, or a recognition is "
-                  "already running)", file=sys.stderr)
+            print('[recognize] goal rejected (unknown planner mode, or a recognition is '
+                  'already running)', file=sys.stderr)
             return 1
         print(f"recognize goal accepted (planner {args.planner or 'default'})", flush=True)
         result_future = handle.get_result_async()
         if not spin_until(node, result_future.done, args.timeout):
-            print(f"[recognize] no result within {args.timeout:.0f} s; cancelling",
+            print(f'[recognize] no result within {args.timeout:.0f} s; cancelling',
                   file=sys.stderr)
             cancel = handle.cancel_goal_async()
             spin_until(node, cancel.done, 10.0)
@@ -139,7 +139,7 @@ def main(argv=None):
         return report(response, tracer, args.result_json)
     except KeyboardInterrupt:
         if handle is not None and handle.accepted:
-            print("\n[recognize] Ctrl-C: cancelling the goal", file=sys.stderr)
+            print('\n[recognize] Ctrl-C: cancelling the goal', file=sys.stderr)
             cancel = handle.cancel_goal_async()
             spin_until(node, cancel.done, 5.0)
         return 130
@@ -153,19 +153,19 @@ def report(response, tracer, result_json):
     result = response.result
     elapsed = result.elapsed.sec + result.elapsed.nanosec * 1e-9
     summary = {
-        "status": STATUS_NAMES.get(response.status, str(response.status)),
-        "success": bool(result.success),
-        "reason": result.reason,
-        "object_id": result.object_id,
-        "posterior": float(result.posterior),
-        "actions": int(result.actions_taken),
-        "elapsed_s": elapsed,
-        "entropy": float(tracer.belief.entropy) if tracer.belief else None,
+        'status': STATUS_NAMES.get(response.status, str(response.status)),
+        'success': bool(result.success),
+        'reason': result.reason,
+        'object_id': result.object_id,
+        'posterior': float(result.posterior),
+        'actions': int(result.actions_taken),
+        'elapsed_s': elapsed,
+        'entropy': float(tracer.belief.entropy) if tracer.belief else None,
     }
     truth = tracer.ground_truth
     if truth is not None:
-        summary["ground_truth"] = truth.object_id
-        summary["correct"] = truth.object_id == result.object_id
+        summary['ground_truth'] = truth.object_id
+        summary['correct'] = truth.object_id == result.object_id
     print(f"result: {summary['status']}: {result.object_id or '-'} posterior "
           f"{result.posterior:.3f} after {result.actions_taken} actions, {elapsed:.1f} s "
           f"({result.reason})", flush=True)
@@ -173,11 +173,11 @@ def report(response, tracer, result_json):
         print(f"ground truth: {truth.object_id} -> "
               f"{'correct' if summary['correct'] else 'WRONG'}", flush=True)
     if result_json:
-        with open(result_json, "w") as out:
+        with open(result_json, 'w') as out:
             json.dump(summary, out, indent=2)
     ok = response.status == GoalStatus.STATUS_SUCCEEDED and result.success
-    return 0 if ok and summary.get("correct", True) else 1
+    return 0 if ok and summary.get('correct', True) else 1
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -21,33 +21,33 @@ from launch_ros.actions import Node, SetParameter
 
 
 def generate_launch_description():
-    config = os.path.join(get_package_share_directory("abp_bringup"), "config", "abp.yaml")
-    sim = LaunchConfiguration("sim")
-    namespace = LaunchConfiguration("namespace")
+    config = os.path.join(get_package_share_directory('abp_bringup'), 'config', 'abp.yaml')
+    sim = LaunchConfiguration('sim')
+    namespace = LaunchConfiguration('namespace')
     use_sim_time = PythonExpression(["'", sim, "' == 'true'"])
 
     def node(package, executable, extra=None, sim_time=True, **kw):
-        params = [config, {"use_sim_time": use_sim_time} if sim_time else {}, extra or {}]
+        params = [config, {'use_sim_time': use_sim_time} if sim_time else {}, extra or {}]
         return Node(package=package, executable=executable, namespace=namespace,
-                    output="screen", parameters=params, **kw)
+                    output='screen', parameters=params, **kw)
 
     return LaunchDescription([
-        DeclareLaunchArgument("sim", default_value="true", description="start the sim bridge"),
-        DeclareLaunchArgument("models", default_value="robot",
-                              description="model set: robot, random, full or visual"),
-        DeclareLaunchArgument("planner", default_value="abp",
-                              description="random, abp, abp2, abp3 or cost"),
-        DeclareLaunchArgument("seed", default_value="0", description="model-set seed"),
-        DeclareLaunchArgument("namespace", default_value="",
-                              description="namespace of every node (empty = the root)"),
+        DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
+        DeclareLaunchArgument('models', default_value='robot',
+                              description='model set: robot, random, full or visual'),
+        DeclareLaunchArgument('planner', default_value='abp',
+                              description='random, abp, abp2, abp3 or cost'),
+        DeclareLaunchArgument('seed', default_value='0', description='model-set seed'),
+        DeclareLaunchArgument('namespace', default_value='',
+                              description='namespace of every node (empty = the root)'),
         # The model set, once for the whole graph (as `/**:` in a parameters file).
-        SetParameter(name="model_set", value=LaunchConfiguration("models")),
-        SetParameter(name="seed", value=LaunchConfiguration("seed")),
+        SetParameter(name='model_set', value=LaunchConfiguration('models')),
+        SetParameter(name='seed', value=LaunchConfiguration('seed')),
         # The sim bridge publishes /clock, so it runs on wall time.
-        node("abp_sim_bridge", "sim_bridge", sim_time=False, condition=IfCondition(sim)),
-        node("abp_perception", "artag_detector"),
-        node("abp_perception", "aspect_matcher"),
-        node("abp_belief", "belief"),
-        node("abp_skills", "skill_servers"),  # all four action servers, one process
-        node("abp_planner", "planner", {"planner_mode": LaunchConfiguration("planner")}),
+        node('abp_sim_bridge', 'sim_bridge', sim_time=False, condition=IfCondition(sim)),
+        node('abp_perception', 'artag_detector'),
+        node('abp_perception', 'aspect_matcher'),
+        node('abp_belief', 'belief'),
+        node('abp_skills', 'skill_servers'),  # all four action servers, one process
+        node('abp_planner', 'planner', {'planner_mode': LaunchConfiguration('planner')}),
     ])

@@ -15,8 +15,8 @@ import sys
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
@@ -26,58 +26,58 @@ from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-WORLD = REPO / "tests" / "helpers" / "model_world_node.py"
+WORLD = REPO / 'tests' / 'helpers' / 'model_world_node.py'
 SEED = 5
 TRUE_MODEL = 9
 
 
 def executable(package, name):
-    return os.path.join(ament_index.get_package_prefix(package), "lib", package, name)
+    return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
 def model_params():
-    return ["--ros-args", "-p", "model_set:=robot", "-p", f"seed:={SEED}"]
+    return ['--ros-args', '-p', 'model_set:=robot', '-p', f'seed:={SEED}']
 
 
 def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_context, spin,
                                                           tmp_path):
-    bag = tmp_path / "episode"
-    ros_processes.start([executable("abp_belief", "belief"), *model_params()])
-    ros_processes.start([executable("abp_planner", "planner"), *model_params()])
-    world = ros_processes.start([sys.executable, str(WORLD), "robot", str(SEED),
+    bag = tmp_path / 'episode'
+    ros_processes.start([executable('abp_belief', 'belief'), *model_params()])
+    ros_processes.start([executable('abp_planner', 'planner'), *model_params()])
+    world = ros_processes.start([sys.executable, str(WORLD), 'robot', str(SEED),
                                  str(TRUE_MODEL)])
-    recorder = ros_processes.start([executable("abp_bringup", "bag_recorder"), "--ros-args",
-                                    "-p", f"output:={bag}"])
-    ros_processes.wait_for_line(world, "READY", timeout=30)
+    recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
+                                    '-p', f'output:={bag}'])
+    ros_processes.wait_for_line(world, 'READY', timeout=30)
     # Start the episode only once the recorder hears both inputs the replay needs.
-    heard = "".join(ros_processes.wait_for_line(recorder, "first message on /abp/", 60))
-    for topic in ("/abp/aspect_observation", "/abp/belief"):
-        if f"first message on {topic}" not in heard:
-            heard += "".join(ros_processes.wait_for_line(recorder, f"first message on {topic}",
+    heard = ''.join(ros_processes.wait_for_line(recorder, 'first message on /abp/', 60))
+    for topic in ('/abp/aspect_observation', '/abp/belief'):
+        if f'first message on {topic}' not in heard:
+            heard += ''.join(ros_processes.wait_for_line(recorder, f'first message on {topic}',
                                                          60))
 
-    result_file = tmp_path / "result.json"
-    client = subprocess.run([executable("abp_bringup", "recognize"), "--threshold", "0.99",
-                             "--result-json", str(result_file)],
+    result_file = tmp_path / 'result.json'
+    client = subprocess.run([executable('abp_bringup', 'recognize'), '--threshold', '0.99',
+                             '--result-json', str(result_file)],
                             capture_output=True, text=True, timeout=180)
     assert client.returncode == 0, client.stdout + client.stderr
-    assert "plan " in client.stdout and "belief " in client.stdout  # the readable trace
+    assert 'plan ' in client.stdout and 'belief ' in client.stdout  # the readable trace
     result = json.loads(result_file.read_text())
     truth = robot_set(seed=SEED).names[TRUE_MODEL]
-    assert result["object_id"] == truth and result["posterior"] >= 0.99
+    assert result['object_id'] == truth and result['posterior'] >= 0.99
 
     os.killpg(recorder.pid, signal.SIGINT)
     assert recorder.wait(timeout=20) == 0
     topics = bag_topics(bag)
-    assert topics["/abp/belief"] == "abp_msgs/msg/Belief"
-    assert (bag / "metadata.yaml").read_text().count("storage_identifier: mcap") == 1
+    assert topics['/abp/belief'] == 'abp_msgs/msg/Belief'
+    assert (bag / 'metadata.yaml').read_text().count('storage_identifier: mcap') == 1
     recorded = list(read_bag(bag))
     counts = {t: sum(1 for m in recorded if m[0] == t) for t in topics}
-    assert counts["/abp/executed_action"] == result["actions"]
-    assert counts["/abp/plan"] == result["actions"]
+    assert counts['/abp/executed_action'] == result['actions']
+    assert counts['/abp/plan'] == result['actions']
     store = typestore()
-    last_belief = deserialize(store, [m for m in recorded if m[0] == "/abp/belief"][-1][3],
-                              "abp_msgs/msg/Belief")
+    last_belief = deserialize(store, [m for m in recorded if m[0] == '/abp/belief'][-1][3],
+                              'abp_msgs/msg/Belief')
     assert last_belief.object_ids[0] == truth
 
     # Replay observations and actions into a fresh belief node at the recorded pace.
@@ -85,17 +85,17 @@ def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_c
     # takes them alternately, out of their recorded order (DDS orders within a topic
     # only): an action can then overtake the frames that preceded it.
     ros_processes.stop_all()
-    replay_belief = ros_processes.start([executable("abp_belief", "belief"), *model_params()])
-    node = rclpy.create_node("replay_checker", context=rclpy_context)
+    replay_belief = ros_processes.start([executable('abp_belief', 'belief'), *model_params()])
+    node = rclpy.create_node('replay_checker', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     beliefs = []
     node.create_subscription(Belief, names.BELIEF, beliefs.append, qos.LATCHED)
     assert spin(executor, lambda: beliefs, 30)
     player = subprocess.run(
-        [executable("abp_bringup", "bag_player"), str(bag), "--rate", "1", "--topics",
-         "/abp/aspect_observation", "/abp/executed_action", "--wait-for",
-         "/abp/aspect_observation", "/abp/executed_action"],
+        [executable('abp_bringup', 'bag_player'), str(bag), '--rate', '1', '--topics',
+         '/abp/aspect_observation', '/abp/executed_action', '--wait-for',
+         '/abp/aspect_observation', '/abp/executed_action'],
         capture_output=True, text=True, timeout=120)
     assert player.returncode == 0, player.stderr
     assert spin(executor, lambda: beliefs[-1].step >= last_belief.step, 20), \
@@ -109,36 +109,36 @@ def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_c
 
 
 def test_bad_bags_are_refused_clearly(tmp_path):
-    with pytest.raises(BagError, match="does not exist"):
-        bag_topics(tmp_path / "missing")
-    broken = tmp_path / "broken"
+    with pytest.raises(BagError, match='does not exist'):
+        bag_topics(tmp_path / 'missing')
+    broken = tmp_path / 'broken'
     broken.mkdir()
-    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: {version: 9")
-    with pytest.raises(BagError, match="cannot read bag"):
+    (broken / 'metadata.yaml').write_text('rosbag2_bagfile_information: {version: 9')
+    with pytest.raises(BagError, match='cannot read bag'):
         bag_topics(broken)
-    player = subprocess.run([executable("abp_bringup", "bag_player"), str(tmp_path / "missing")],
+    player = subprocess.run([executable('abp_bringup', 'bag_player'), str(tmp_path / 'missing')],
                             capture_output=True, text=True, timeout=60)
-    assert player.returncode == 2 and "does not exist" in player.stderr
-    existing = tmp_path / "exists"
+    assert player.returncode == 2 and 'does not exist' in player.stderr
+    existing = tmp_path / 'exists'
     existing.mkdir()
-    recorder = subprocess.run([executable("abp_bringup", "bag_recorder"), "--ros-args", "-p",
-                               f"output:={existing}"], capture_output=True, text=True, timeout=60)
-    assert recorder.returncode == 2 and "already exists" in recorder.stderr
+    recorder = subprocess.run([executable('abp_bringup', 'bag_recorder'), '--ros-args', '-p',
+                               f'output:={existing}'], capture_output=True, text=True, timeout=60)
+    assert recorder.returncode == 2 and 'already exists' in recorder.stderr
 
 
 def test_recorder_under_a_namespace_records_its_absolute_topics(ros_processes, rclpy_context,
                                                                  spin, tmp_path):
-    bag = tmp_path / "ns"
-    recorder = ros_processes.start([executable("abp_bringup", "bag_recorder"), "--ros-args",
-                                    "-r", "__ns:=/robot1", "-p", f"output:={bag}"])
-    ros_processes.wait_for_line(recorder, "recording 9 topics", 30)
-    node = rclpy.create_node("namespace_checker", context=rclpy_context)
+    bag = tmp_path / 'ns'
+    recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
+                                    '-r', '__ns:=/robot1', '-p', f'output:={bag}'])
+    ros_processes.wait_for_line(recorder, 'recording 9 topics', 30)
+    node = rclpy.create_node('namespace_checker', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
-    assert spin(executor, lambda: node.count_subscribers("/robot1/abp/belief") > 0, 30)
-    assert node.count_subscribers("/abp/belief") == 0
+    assert spin(executor, lambda: node.count_subscribers('/robot1/abp/belief') > 0, 30)
+    assert node.count_subscribers('/abp/belief') == 0
     os.killpg(recorder.pid, signal.SIGINT)
     assert recorder.wait(timeout=20) == 0
-    assert bag_topics(bag)["/robot1/abp/belief"] == "abp_msgs/msg/Belief"
+    assert bag_topics(bag)['/robot1/abp/belief'] == 'abp_msgs/msg/Belief'
     executor.shutdown()
     node.destroy_node()

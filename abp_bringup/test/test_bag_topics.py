@@ -16,19 +16,19 @@ from abp_common.param_spec import check_all
 
 def test_graph_topics_are_absolute_in_the_recorders_namespace():
     root = graph_topics()
-    assert root["/abp/belief"] == "abp_msgs/msg/Belief"
-    assert "/camera/image_raw" not in root
-    assert "/camera/image_raw" in graph_topics(images=True)
-    robot = graph_topics("robot1", images=True)
-    assert robot["/robot1/abp/tag_detections"] == "abp_msgs/msg/TagDetectionArray"
-    assert set(robot) == {"/robot1/" + name for name in {**GRAPH_TOPICS, **IMAGE_TOPICS}}
-    assert graph_topics("/robot1/") == graph_topics("robot1")
+    assert root['/abp/belief'] == 'abp_msgs/msg/Belief'
+    assert '/camera/image_raw' not in root
+    assert '/camera/image_raw' in graph_topics(images=True)
+    robot = graph_topics('robot1', images=True)
+    assert robot['/robot1/abp/tag_detections'] == 'abp_msgs/msg/TagDetectionArray'
+    assert set(robot) == {'/robot1/' + name for name in {**GRAPH_TOPICS, **IMAGE_TOPICS}}
+    assert graph_topics('/robot1/') == graph_topics('robot1')
 
 
-@pytest.mark.parametrize("topic, name", [
-    ("/abp/belief", "abp/belief"), ("/robot1/abp/belief", "abp/belief"),
-    ("/a/b/camera/image_raw", "camera/image_raw"), ("/odom", "odom"),
-    ("/wheel_odom", ""), ("/abp/other", ""),
+@pytest.mark.parametrize('topic, name', [
+    ('/abp/belief', 'abp/belief'), ('/robot1/abp/belief', 'abp/belief'),
+    ('/a/b/camera/image_raw', 'camera/image_raw'), ('/odom', 'odom'),
+    ('/wheel_odom', ''), ('/abp/other', ''),
 ])
 def test_graph_name_maps_a_bag_topic_back(topic, name):
     assert graph_name(topic) == name
@@ -36,15 +36,15 @@ def test_graph_name_maps_a_bag_topic_back(topic, name):
 
 def test_recorded_topics_resolve_relative_and_keep_absolute_names():
     assert recorded_topics() == graph_topics()
-    assert recorded_topics(None, True, "/robot1") == graph_topics("robot1", images=True)
-    chosen = recorded_topics(["abp/belief", "/robot1/abp/plan", ""], False, "/robot1")
-    assert chosen == {"/robot1/abp/belief": "abp_msgs/msg/Belief",
-                      "/robot1/abp/plan": "abp_msgs/msg/PlanStep"}
-    with pytest.raises(ValueError, match="not graph topics"):
-        recorded_topics(["/abp/belief"], namespace="/robot1")
+    assert recorded_topics(None, True, '/robot1') == graph_topics('robot1', images=True)
+    chosen = recorded_topics(['abp/belief', '/robot1/abp/plan', ''], False, '/robot1')
+    assert chosen == {'/robot1/abp/belief': 'abp_msgs/msg/Belief',
+                      '/robot1/abp/plan': 'abp_msgs/msg/PlanStep'}
+    with pytest.raises(ValueError, match='not graph topics'):
+        recorded_topics(['/abp/belief'], namespace='/robot1')
 
 
 def test_recorder_parameters_refuse_an_unknown_storage():
-    check_all(RECORDER_SPECS, {"storage": "sqlite3"})
-    with pytest.raises(ValueError, match="storage must be one of mcap, sqlite3"):
-        check_all(RECORDER_SPECS, {"storage": "zip"})
+    check_all(RECORDER_SPECS, {'storage': 'sqlite3'})
+    with pytest.raises(ValueError, match='storage must be one of mcap, sqlite3'):
+        check_all(RECORDER_SPECS, {'storage': 'zip'})

@@ -16,8 +16,8 @@ import subprocess
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
@@ -25,12 +25,12 @@ from abp_bringup.bag import deserialize, read_bag, typestore  # noqa: E402
 from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
-BAGS = pathlib.Path(__file__).resolve().parents[2] / "bags"
-EPISODES = sorted(p for p in BAGS.glob("*") if (p / "metadata.yaml").exists())
+BAGS = pathlib.Path(__file__).resolve().parents[2] / 'bags'
+EPISODES = sorted(p for p in BAGS.glob('*') if (p / 'metadata.yaml').exists())
 
 
 def executable(package, name):
-    return os.path.join(ament_index.get_package_prefix(package), "lib", package, name)
+    return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
 def recorded(bag):
@@ -38,45 +38,45 @@ def recorded(bag):
     store = typestore()
     beliefs, truth, actions = [], None, []
     for topic, msgtype, _, data in read_bag(bag):
-        if topic == "/abp/belief":
+        if topic == '/abp/belief':
             beliefs.append(deserialize(store, data, msgtype))
-        elif topic == "/abp/sim/ground_truth":
+        elif topic == '/abp/sim/ground_truth':
             truth = deserialize(store, data, msgtype)
-        elif topic == "/abp/executed_action":
+        elif topic == '/abp/executed_action':
             actions.append(deserialize(store, data, msgtype))
     return beliefs[-1], truth, actions
 
 
 def test_there_are_recorded_episodes_with_a_manual_action():
-    assert len(EPISODES) >= 2, f"expected committed episodes in {BAGS}"
+    assert len(EPISODES) >= 2, f'expected committed episodes in {BAGS}'
     manual = set()
     for bag in EPISODES:
         _, truth, actions = recorded(bag)
-        if not truth.object_id.endswith("/u"):
-            manual |= {a.action for a in actions if a.success} & {"PUSH", "LIFT", "FLIP"}
-    assert manual, "no recorded eccentric twin identified through a manual action"
+        if not truth.object_id.endswith('/u'):
+            manual |= {a.action for a in actions if a.success} & {'PUSH', 'LIFT', 'FLIP'}
+    assert manual, 'no recorded eccentric twin identified through a manual action'
 
 
-@pytest.mark.parametrize("bag", EPISODES, ids=[p.name for p in EPISODES])
+@pytest.mark.parametrize('bag', EPISODES, ids=[p.name for p in EPISODES])
 def test_replay_reproduces_the_recorded_identification(bag, ros_processes, rclpy_context, spin):
     last_belief, truth, actions = recorded(bag)
     assert last_belief.object_ids[0] == truth.object_id  # the live run was right
     # The recorded episodes use the robot set with seed 1 (see bags/README.md).
-    params = ["--ros-args", "-p", "model_set:=robot", "-p", "seed:=1"]
-    ros_processes.start([executable("abp_perception", "aspect_matcher"), *params])
-    ros_processes.start([executable("abp_belief", "belief"), *params])
-    node = rclpy.create_node("replay_checker", context=rclpy_context)
+    params = ['--ros-args', '-p', 'model_set:=robot', '-p', 'seed:=1']
+    ros_processes.start([executable('abp_perception', 'aspect_matcher'), *params])
+    ros_processes.start([executable('abp_belief', 'belief'), *params])
+    node = rclpy.create_node('replay_checker', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     beliefs = []
     node.create_subscription(Belief, names.BELIEF, beliefs.append, qos.LATCHED)
-    assert spin(executor, lambda: beliefs, 30), "belief node did not start"
-    assert beliefs[-1].model_set_id == last_belief.model_set_id, "not the recorded model set"
+    assert spin(executor, lambda: beliefs, 30), 'belief node did not start'
+    assert beliefs[-1].model_set_id == last_belief.model_set_id, 'not the recorded model set'
 
     player = subprocess.run(
-        [executable("abp_bringup", "bag_player"), str(bag), "--rate", "5", "--topics",
-         "/abp/tag_detections", "/abp/executed_action", "--wait-for", "/abp/tag_detections",
-         "/abp/executed_action"], capture_output=True, text=True, timeout=300)
+        [executable('abp_bringup', 'bag_player'), str(bag), '--rate', '5', '--topics',
+         '/abp/tag_detections', '/abp/executed_action', '--wait-for', '/abp/tag_detections',
+         '/abp/executed_action'], capture_output=True, text=True, timeout=300)
     assert player.returncode == 0, player.stderr
     # A belief is stamped with the observation or action that made it: the replay is
     # complete when it has applied the evidence that made the recorded last belief.
@@ -85,7 +85,7 @@ def test_replay_reproduces_the_recorded_identification(bag, ros_processes, rclpy
     final_stamp = (last_belief.header.stamp.sec, last_belief.header.stamp.nanosec)
     assert spin(executor, lambda: (beliefs[-1].header.stamp.sec,
                                    beliefs[-1].header.stamp.nanosec) >= final_stamp, 30), \
-        f"replay stopped at stamp {beliefs[-1].header.stamp}, the live run at {final_stamp}"
+        f'replay stopped at stamp {beliefs[-1].header.stamp}, the live run at {final_stamp}'
     spin(executor, lambda: False, 1.0)
     replayed = beliefs[-1]
     assert (replayed.header.stamp.sec, replayed.header.stamp.nanosec) == final_stamp

@@ -34,19 +34,19 @@ from .detector import ImageEncodingError, TagDetector, image_msg_to_gray
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
 THROTTLE_S = 5.0
-DISTORTION_MODELS = ("plumb_bob", "rational_polynomial", "")
+DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', '')
 
 
 class ArtagDetectorNode(Node):
     def __init__(self):
-        super().__init__("artag_detector")
+        super().__init__('artag_detector')
         self._values = declare_all(self, DETECTOR_SPECS)
-        self.kinematics = RobotKinematics(self._values["urdf_file"] or None)
-        self.base_frame = self._values["base_frame"]
-        self.camera_frame = self._values["camera_frame"]
+        self.kinematics = RobotKinematics(self._values['urdf_file'] or None)
+        self.base_frame = self._values['base_frame']
+        self.camera_frame = self._values['camera_frame']
         if not self.kinematics.has_frame(self.camera_frame):
-            raise ValueError(f"parameter camera_frame: no frame {self.camera_frame!r} in "
-                             f"{self.kinematics.urdf_path}")
+            raise ValueError(f'parameter camera_frame: no frame {self.camera_frame!r} in '
+                             f'{self.kinematics.urdf_path}')
         self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
         self._camera_key = None
@@ -67,7 +67,7 @@ class ArtagDetectorNode(Node):
 
     # -- parameters ---------------------------------------------------------------
     def _build_detector(self, config, camera_matrix, dist_coeffs):
-        return TagDetector(camera_matrix, dist_coeffs, dictionary=self._values["dictionary"],
+        return TagDetector(camera_matrix, dist_coeffs, dictionary=self._values['dictionary'],
                            camera_frame=self.camera_frame, **config)
 
     def _on_set_parameters(self, params):
@@ -105,7 +105,7 @@ class ArtagDetectorNode(Node):
         try:
             self.detector = self._build_detector(self._config, k, d if d.size else None)
         except ValueError as error:
-            self.get_logger().warning(f"camera_info refused: {error}; images skipped",
+            self.get_logger().warning(f'camera_info refused: {error}; images skipped',
                                       throttle_duration_sec=THROTTLE_S)
             return
         self._camera_key = key
@@ -113,8 +113,8 @@ class ArtagDetectorNode(Node):
 
     def _on_joint_state(self, msg: JointState):
         if len(msg.name) != len(msg.position):
-            self.get_logger().warning("joint_states with names and positions of different "
-                                      "lengths ignored", throttle_duration_sec=THROTTLE_S)
+            self.get_logger().warning('joint_states with names and positions of different '
+                                      'lengths ignored', throttle_duration_sec=THROTTLE_S)
             return
         joints = dict(zip(msg.name, msg.position))
         self._joints = self.kinematics.q_from_mapping(
@@ -123,23 +123,23 @@ class ArtagDetectorNode(Node):
     def _on_image(self, msg: Image):
         if self.detector is None:
             self.get_logger().warning(
-                f"no valid camera_info on {self.resolve_topic_name(names.CAMERA_INFO)} yet: "
-                "image skipped", throttle_duration_sec=THROTTLE_S)
+                f'no valid camera_info on {self.resolve_topic_name(names.CAMERA_INFO)} yet: '
+                'image skipped', throttle_duration_sec=THROTTLE_S)
             return
         w, h = self._camera_size
         if w and h and (msg.width != w or msg.height != h):
             self.get_logger().warning(
-                f"image is {msg.width}x{msg.height} but camera_info is {w}x{h}: skipped",
+                f'image is {msg.width}x{msg.height} but camera_info is {w}x{h}: skipped',
                 throttle_duration_sec=THROTTLE_S)
             return
         try:
             gray = image_msg_to_gray(msg)
         except ImageEncodingError as error:
-            self.get_logger().error(f"image skipped: {error}", throttle_duration_sec=THROTTLE_S)
+            self.get_logger().error(f'image skipped: {error}', throttle_duration_sec=THROTTLE_S)
             return
         result = self.detector.detect(gray)
         for dropped in result.dropped:
-            self.get_logger().debug(f"tag {dropped.tag_id} dropped: {dropped.reason}")
+            self.get_logger().debug(f'tag {dropped.tag_id} dropped: {dropped.reason}')
         frame = self._camera_frame_of(msg.header.frame_id)
         if self._joints is not None:
             result = result.in_frame(self.kinematics.frame_pose(self._joints, frame),
@@ -147,8 +147,8 @@ class ArtagDetectorNode(Node):
             out_frame = self.base_frame
         else:
             self.get_logger().warning(
-                f"no {self.resolve_topic_name(names.JOINT_STATES)} yet: detections published "
-                "in the camera frame", throttle_duration_sec=THROTTLE_S)
+                f'no {self.resolve_topic_name(names.JOINT_STATES)} yet: detections published '
+                'in the camera frame', throttle_duration_sec=THROTTLE_S)
             out_frame = msg.header.frame_id or frame
         self._pub.publish(self._to_msg(result, msg.header, out_frame))
 
@@ -157,8 +157,8 @@ class ArtagDetectorNode(Node):
             return frame_id
         if frame_id not in self._warned_frames:
             self._warned_frames.add(frame_id)
-            self.get_logger().warning(f"image frame {frame_id!r} is not in the URDF; using "
-                                      f"{self.camera_frame}")
+            self.get_logger().warning(f'image frame {frame_id!r} is not in the URDF; using '
+                                      f'{self.camera_frame}')
         return self.camera_frame
 
     @staticmethod
@@ -185,9 +185,9 @@ class ArtagDetectorNode(Node):
 
 
 def main(args=None):
-    return run_node("artag_detector", ArtagDetectorNode, args,
+    return run_node('artag_detector', ArtagDetectorNode, args,
                     config_errors=(FileNotFoundError,))
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

@@ -40,11 +40,11 @@ THROTTLE_S = 5.0
 
 class AspectMatcherNode(Node):
     def __init__(self):
-        super().__init__("aspect_matcher")
+        super().__init__('aspect_matcher')
         values = declare_all(self, MODEL_SET_SPECS + MATCHER_SPECS)
         # The same parameters as the belief node, so both see the same aspects.
         self.model_set = model_set_from_values(values)
-        self.base_frame = values["base_frame"]
+        self.base_frame = values['base_frame']
         self._config = {name: values[name] for name in MATCHER_PARAMETERS}
         self.matcher = self._build_matcher(self._config)
         self._pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
@@ -53,8 +53,8 @@ class AspectMatcherNode(Node):
                                  qos.RELIABLE)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"matching against {len(self.model_set.aspects)} aspects of "
-            f"{self.model_set.num_models} models (n_tags={self.model_set.n_tags})")
+            f'matching against {len(self.model_set.aspects)} aspects of '
+            f'{self.model_set.num_models} models (n_tags={self.model_set.n_tags})')
 
     # -- parameters ---------------------------------------------------------------
     def _build_matcher(self, config):
@@ -66,7 +66,7 @@ class AspectMatcherNode(Node):
             if param.name in MODEL_SET_PARAMETERS:
                 return SetParametersResult(
                     successful=False,
-                    reason=f"{param.name} defines the model set; restart the node to change it")
+                    reason=f'{param.name} defines the model set; restart the node to change it')
             if param.name in MATCHER_PARAMETERS:
                 changes[param.name] = param.value
         if changes:
@@ -82,9 +82,9 @@ class AspectMatcherNode(Node):
     def _on_detections(self, msg: TagDetectionArray):
         if msg.header.frame_id != self.base_frame:
             self.get_logger().warning(
-                f"tag detections in frame {msg.header.frame_id!r}, need {self.base_frame!r} "
-                f"(does the detector get {self.resolve_topic_name(names.JOINT_STATES)}?): "
-                "skipped",
+                f'tag detections in frame {msg.header.frame_id!r}, need {self.base_frame!r} '
+                f'(does the detector get {self.resolve_topic_name(names.JOINT_STATES)}?): '
+                'skipped',
                 throttle_duration_sec=THROTTLE_S)
             return
         features = []
@@ -92,12 +92,12 @@ class AspectMatcherNode(Node):
             try:
                 features.append(self._feature(det))
             except ValueError as error:       # a zero or non-finite orientation quaternion
-                self.get_logger().warning(f"tag {det.id} skipped: {error}",
+                self.get_logger().warning(f'tag {det.id} skipped: {error}',
                                           throttle_duration_sec=THROTTLE_S)
         result = self.matcher.match(features)
         if result.ignored_ids:
-            self.get_logger().debug(f"ignored tag ids outside the model set: "
-                                    f"{result.ignored_ids}")
+            self.get_logger().debug(f'ignored tag ids outside the model set: '
+                                    f'{result.ignored_ids}')
         self._pub.publish(self._to_msg(msg.header, features, result))
 
     @staticmethod
@@ -141,8 +141,8 @@ class AspectMatcherNode(Node):
 
 
 def main(args=None):
-    return run_node("aspect_matcher", AspectMatcherNode, args, config_errors=(ModelFileError,))
+    return run_node('aspect_matcher', AspectMatcherNode, args, config_errors=(ModelFileError,))
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     sys.exit(main())

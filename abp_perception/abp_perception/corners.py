@@ -29,7 +29,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["refine_quads", "decode_quads", "quad_areas"]
+__all__ = ['refine_quads', 'decode_quads', 'quad_areas']
 
 # Edge-profile sampling: fractions of each edge, samples across it (wide first pass to
 # recover contour corners that are several pixels off, then a narrow pass).
@@ -198,8 +198,8 @@ def _grid_points(cells: int):
     """Sample points in canonical marker coordinates (marker spans [0, cells]^2)."""
     sub = np.array([-0.2, 0.0, 0.2])
     centres = np.stack(np.meshgrid(np.arange(cells) + 0.5, np.arange(cells) + 0.5,
-                                   indexing="xy"), axis=-1).reshape(-1, 2)   # row-major (y, x)
-    offsets = np.stack(np.meshgrid(sub, sub, indexing="xy"), axis=-1).reshape(-1, 2)
+                                   indexing='xy'), axis=-1).reshape(-1, 2)   # row-major (y, x)
+    offsets = np.stack(np.meshgrid(sub, sub, indexing='xy'), axis=-1).reshape(-1, 2)
     samples = (centres[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
     ring = []
     for v in np.linspace(0.5, cells - 0.5, cells):
@@ -231,8 +231,8 @@ def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_error
                       for quad in q])
     pts = np.concatenate([samples, ring])
     ph = np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1)
-    proj = np.einsum("qij,pj->qpi", homog, ph)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    proj = np.einsum('qij,pj->qpi', homog, ph)
+    with np.errstate(divide='ignore', invalid='ignore'):
         xy = (proj[..., :2] / proj[..., 2:3]).astype(np.float32)
     xy = np.nan_to_num(xy, nan=-1e4, posinf=-1e4, neginf=-1e4)
     vals = cv2.remap(gray, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,

@@ -57,26 +57,26 @@ import numpy as np
 from .corners import decode_quads, quad_areas, refine_quads
 
 __all__ = [
-    "ImageEncodingError", "image_to_gray", "image_msg_to_gray", "SUPPORTED_ENCODINGS",
-    "DICTIONARY_NAMES", "dictionary_id", "marker_object_points", "Detection",
-    "DroppedDetection", "DetectionResult", "TagDetector", "transform_covariance",
-    "pose_covariance",
+    'ImageEncodingError', 'image_to_gray', 'image_msg_to_gray', 'SUPPORTED_ENCODINGS',
+    'DICTIONARY_NAMES', 'dictionary_id', 'marker_object_points', 'Detection',
+    'DroppedDetection', 'DetectionResult', 'TagDetector', 'transform_covariance',
+    'pose_covariance',
 ]
 
 # encoding -> (channels, cv2 conversion to grey or None)
 _ENCODINGS = {
-    "mono8": (1, None),
-    "8UC1": (1, None),
-    "bgr8": (3, cv2.COLOR_BGR2GRAY),
-    "8UC3": (3, cv2.COLOR_BGR2GRAY),
-    "rgb8": (3, cv2.COLOR_RGB2GRAY),
-    "bgra8": (4, cv2.COLOR_BGRA2GRAY),
-    "8UC4": (4, cv2.COLOR_BGRA2GRAY),
-    "rgba8": (4, cv2.COLOR_RGBA2GRAY),
+    'mono8': (1, None),
+    '8UC1': (1, None),
+    'bgr8': (3, cv2.COLOR_BGR2GRAY),
+    '8UC3': (3, cv2.COLOR_BGR2GRAY),
+    'rgb8': (3, cv2.COLOR_RGB2GRAY),
+    'bgra8': (4, cv2.COLOR_BGRA2GRAY),
+    '8UC4': (4, cv2.COLOR_BGRA2GRAY),
+    'rgba8': (4, cv2.COLOR_RGBA2GRAY),
 }
 SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
 
-DICTIONARY_NAMES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+DICTIONARY_NAMES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith('DICT_')))
 
 _FULL_CONFIDENCE_SIDE_PX = 20.0
 _POSITION_FLOOR = 1e-4       # m
@@ -99,17 +99,17 @@ def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
     channels, conversion = _ENCODINGS[encoding]
     height, width, step = int(height), int(width), int(step)
     if height <= 0 or width <= 0:
-        raise ImageEncodingError(f"empty image ({width} x {height})")
+        raise ImageEncodingError(f'empty image ({width} x {height})')
     if step < width * channels:
         raise ImageEncodingError(
-            f"step {step} is smaller than width x channels = {width * channels} for {encoding}")
+            f'step {step} is smaller than width x channels = {width * channels} for {encoding}')
     try:
         buf = np.frombuffer(memoryview(data), dtype=np.uint8)
     except TypeError:
         buf = np.asarray(data, dtype=np.uint8).reshape(-1)
     if buf.size < step * height:
         raise ImageEncodingError(
-            f"image data has {buf.size} bytes, expected step x height = {step * height}")
+            f'image data has {buf.size} bytes, expected step x height = {step * height}')
     rows = buf[:step * height].reshape(height, step)[:, :width * channels]
     if channels == 1:
         return rows
@@ -148,7 +148,7 @@ class Detection:
     confidence: float
     side_px: float                 # apparent side (sqrt of the image area), px
     marker_size: float             # m
-    frame: str = "camera"
+    frame: str = 'camera'
     ambiguity: float = 0.0         # best / second-best IPPE reprojection error (0..1)
 
     @property
@@ -232,18 +232,18 @@ class TagDetector:
     >>> in_base = result.in_frame(T_base_camera, "base_link")
     """
 
-    def __init__(self, camera_matrix, dist_coeffs=None, dictionary="DICT_4X4_50",
+    def __init__(self, camera_matrix, dist_coeffs=None, dictionary='DICT_4X4_50',
                  marker_size: float = 0.08, refine_corners: bool = True,
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
-                 ambiguity_ratio: float = 0.7, camera_frame: str = "camera"):
+                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera'):
         if not (np.isfinite(marker_size) and marker_size > 0):
-            raise ValueError(f"marker_size must be > 0 m, got {marker_size}")
+            raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
-            raise ValueError(f"corner_sigma_px must be > 0, got {corner_sigma_px}")
+            raise ValueError(f'corner_sigma_px must be > 0, got {corner_sigma_px}')
         if not max_reprojection_error > 0:
-            raise ValueError(f"max_reprojection_error must be > 0 px, got "
-                             f"{max_reprojection_error}")
+            raise ValueError(f'max_reprojection_error must be > 0 px, got '
+                             f'{max_reprojection_error}')
         self.dictionary_name = dictionary if isinstance(dictionary, str) else str(dictionary)
         self.dictionary = cv2.aruco.getPredefinedDictionary(
             dictionary_id(dictionary) if isinstance(dictionary, str) else int(dictionary))
@@ -286,13 +286,13 @@ class TagDetector:
         """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None)."""
         k = np.asarray(camera_matrix, dtype=np.float64).reshape(3, 3)
         if not (np.isfinite(k).all() and k[0, 0] > 0 and k[1, 1] > 0):
-            raise ValueError("camera matrix must be finite with positive focal lengths")
+            raise ValueError('camera matrix must be finite with positive focal lengths')
         d = None if dist_coeffs is None else np.asarray(dist_coeffs, np.float64).reshape(-1)
         if d is not None and (d.size == 0 or not np.any(d)):
             d = None
         if d is not None and (d.size not in (4, 5, 8, 12, 14) or not np.isfinite(d).all()):
-            raise ValueError(f"distortion needs 4, 5, 8, 12 or 14 finite coefficients, "
-                             f"got {d.size}")
+            raise ValueError(f'distortion needs 4, 5, 8, 12 or 14 finite coefficients, '
+                             f'got {d.size}')
         self.camera_matrix = k
         self.dist_coeffs = d
         self.focal_px = 0.5 * (k[0, 0] + k[1, 1])
@@ -302,7 +302,7 @@ class TagDetector:
         """Detect tags in a grey uint8 image; poses in the camera optical frame."""
         gray = np.asarray(gray)
         if gray.ndim != 2 or gray.dtype != np.uint8:
-            raise ValueError(f"expected a 2-D uint8 grey image, got {gray.dtype} {gray.shape}")
+            raise ValueError(f'expected a 2-D uint8 grey image, got {gray.dtype} {gray.shape}')
         corners, ids, rejected = self.aruco.detectMarkers(gray)
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
         tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
@@ -339,7 +339,7 @@ class TagDetector:
         if accepted.shape[0] and keep.any():
             keep &= ~_inside_any(cand.mean(axis=1), accepted)
         idx = np.flatnonzero(keep)
-        idx = idx[np.argsort(-area[idx], kind="stable")][:MAX_CANDIDATES]
+        idx = idx[np.argsort(-area[idx], kind='stable')][:MAX_CANDIDATES]
         return cand[idx]
 
     def _decode_candidates(self, gray, cand):
@@ -359,32 +359,32 @@ class TagDetector:
 
     def _pose(self, tag_id, quad):
         if not np.isfinite(quad).all():
-            return DroppedDetection(tag_id, "non-finite corners", quad)
+            return DroppedDetection(tag_id, 'non-finite corners', quad)
         area = float(quad_areas(quad[None])[0])
         side = float(np.sqrt(abs(area)))
         if side < self.min_side_px:
             return DroppedDetection(
-                tag_id, f"degenerate quad: side {side:.1f} px < {self.min_side_px} px", quad)
+                tag_id, f'degenerate quad: side {side:.1f} px < {self.min_side_px} px', quad)
         if area <= 0 or not cv2.isContourConvex(quad.astype(np.float32).reshape(-1, 1, 2)):
-            return DroppedDetection(tag_id, "non-convex or mirrored quad", quad)
+            return DroppedDetection(tag_id, 'non-convex or mirrored quad', quad)
         try:
             n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
                 self.object_points, quad, self.camera_matrix, self.dist_coeffs,
                 flags=cv2.SOLVEPNP_IPPE_SQUARE)
         except cv2.error as error:
-            return DroppedDetection(tag_id, f"solvePnP failed: {error.msg}", quad)
+            return DroppedDetection(tag_id, f'solvePnP failed: {error.msg}', quad)
         if not n:
-            return DroppedDetection(tag_id, "solvePnP found no pose", quad)
+            return DroppedDetection(tag_id, 'solvePnP found no pose', quad)
         errors = np.asarray(errors, dtype=np.float64).reshape(-1)
         rvec, tvec = np.asarray(rvecs[0]).reshape(3), np.asarray(tvecs[0]).reshape(3)
         rms = float(errors[0])
         if not (np.isfinite(rvec).all() and np.isfinite(tvec).all() and np.isfinite(rms)):
-            return DroppedDetection(tag_id, "non-finite pose", quad)
+            return DroppedDetection(tag_id, 'non-finite pose', quad)
         if tvec[2] <= 0:
-            return DroppedDetection(tag_id, "pose behind the camera", quad)
+            return DroppedDetection(tag_id, 'pose behind the camera', quad)
         if rms > self.max_reprojection_error:
             return DroppedDetection(
-                tag_id, f"reprojection error {rms:.2f} px > {self.max_reprojection_error} px",
+                tag_id, f'reprojection error {rms:.2f} px > {self.max_reprojection_error} px',
                 quad)
         rot, _ = cv2.Rodrigues(rvec)
         ambiguity, angle = 0.0, 0.0

@@ -64,8 +64,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Feature", "Hypothesis", "MatchResult", "AspectMatcher",
-           "features_from_detections", "normal_sigma_of"]
+__all__ = ['Feature', 'Hypothesis', 'MatchResult', 'AspectMatcher',
+           'features_from_detections', 'normal_sigma_of']
 
 _EPS = 1e-12
 _NORMAL_SIGMA_FLOOR = np.deg2rad(3.0)   # normals are never better than this (tags bend)
@@ -161,14 +161,14 @@ class AspectMatcher:
         self.voxel_size = float(voxel_size) if voxel_size is not None else h / 4.0
         self.peak_radius = float(peak_radius) if peak_radius is not None else h / 2.0
         if not (self.voxel_size > 0 and self.peak_radius > 0):
-            raise ValueError("voxel_size and peak_radius must be > 0 m")
+            raise ValueError('voxel_size and peak_radius must be > 0 m')
         if not 0 < orientation_sigma_deg <= 180:
-            raise ValueError(f"orientation_sigma_deg must be in (0, 180], got "
-                             f"{orientation_sigma_deg}")
+            raise ValueError(f'orientation_sigma_deg must be in (0, 180], got '
+                             f'{orientation_sigma_deg}')
         if int(max_hypotheses) < 1:
-            raise ValueError("max_hypotheses must be >= 1")
+            raise ValueError('max_hypotheses must be >= 1')
         if int(distance_samples) < 0:
-            raise ValueError("distance_samples must be >= 0")
+            raise ValueError('distance_samples must be >= 0')
         self.orientation_sigma = np.deg2rad(float(orientation_sigma_deg))
         self.min_pair_score = float(min_pair_score)
         self.min_support = float(min_support)
@@ -205,24 +205,24 @@ class AspectMatcher:
         pos_a, pos_b = np.asarray(pos_a), np.asarray(pos_b)
         frames, ok = _pair_frames(pos_a, pos_b, _normalise(pos_a)[0], _normalise(pos_b)[0])
         if not ok.all():
-            raise ValueError("model aspect with a degenerate feature pair")
+            raise ValueError('model aspect with a degenerate feature pair')
         mid = 0.5 * (pos_a + pos_b)
         # Model normals about the pair axis: roll angle and size of the perpendicular part.
         self._entry_roll, self._entry_perp = [], []
         for p in (pos_a, pos_b):
             nu = _normalise(p)[0]
-            c2 = np.einsum("ei,ei->e", nu, frames[:, :, 1])
-            c3 = np.einsum("ei,ei->e", nu, frames[:, :, 2])
+            c2 = np.einsum('ei,ei->e', nu, frames[:, :, 1])
+            c3 = np.einsum('ei,ei->e', nu, frames[:, :, 2])
             self._entry_roll.append(np.arctan2(c3, c2))
             self._entry_perp.append(np.hypot(c2, c3))
         self._entry_row, self._entry_sa, self._entry_sb = rows, sa, sb
         self._entry_mean = np.asarray(mean, dtype=np.float64)
         self._entry_sigma = np.asarray(sigma, dtype=np.float64)
         self._entry_frame_t = np.transpose(frames, (0, 2, 1))            # model -> pair
-        self._entry_offset = np.einsum("eij,ej->ei", self._entry_frame_t, -mid)  # centre
+        self._entry_offset = np.einsum('eij,ej->ei', self._entry_frame_t, -mid)  # centre
         # Lookup: ordered tag pair -> padded entry list.
         keys = self.aspect_tags[rows, sa] * self.n_tags + self.aspect_tags[rows, sb]
-        order = np.argsort(keys, kind="stable")
+        order = np.argsort(keys, kind='stable')
         counts = np.bincount(keys, minlength=self.n_tags ** 2)
         width = max(1, int(counts.max(initial=0)))
         table = np.full((self.n_tags ** 2, width), -1, dtype=np.int64)
@@ -245,13 +245,13 @@ class AspectMatcher:
             chol = np.linalg.cholesky(cov + 1e-12 * np.eye(3))
             za = self._rng.standard_normal((i.size, s, 3))
             zb = self._rng.standard_normal((i.size, s, 3))
-            xa = pos[i][:, None, :] + np.einsum("pij,psj->psi", chol[i], za)
-            xb = pos[j][:, None, :] + np.einsum("pij,psj->psi", chol[j], zb)
+            xa = pos[i][:, None, :] + np.einsum('pij,psj->psi', chol[i], za)
+            xb = pos[j][:, None, :] + np.einsum('pij,psj->psi', chol[j], zb)
             dist = np.linalg.norm(xb - xa, axis=2)
             return dist.mean(axis=1), dist.std(axis=1, ddof=1)
         d = pos[j] - pos[i]
         u, mu = _normalise(d)
-        var = np.einsum("pi,pij,pj->p", u, cov[i] + cov[j], u)
+        var = np.einsum('pi,pij,pj->p', u, cov[i] + cov[j], u)
         return mu, np.sqrt(np.maximum(var, 1e-12))
 
     def _view_frames(self, centres, viewpoint):
@@ -311,7 +311,7 @@ class AspectMatcher:
         centres, rot, agree, spread, rot_var = self._votes(pos, cov, nrm, nsd, pi[vp], pj[vp],
                                                            entry)
         view_frames = self._view_frames(centres, view)
-        cos_angle = 0.5 * (np.einsum("vij,vij->v", view_frames, rot) - 1.0)
+        cos_angle = 0.5 * (np.einsum('vij,vij->v', view_frames, rot) - 1.0)
         angle = np.arccos(np.clip(cos_angle, -1.0, 1.0))
         weight = rho * agree * np.exp(-0.5 * angle ** 2 / (self.orientation_sigma ** 2 + rot_var)) \
             * np.sqrt(conf[pi[vp]] * conf[pj[vp]])
@@ -349,9 +349,9 @@ class AspectMatcher:
         """
         d = pos[j] - pos[i]
         u, mu = _normalise(d)
-        cu_i = np.einsum("vab,vb->va", cov[i], u)
-        cu_j = np.einsum("vab,vb->va", cov[j], u)
-        var = np.maximum(np.einsum("va,va->v", u, cu_i + cu_j), 1e-12)
+        cu_i = np.einsum('vab,vb->va', cov[i], u)
+        cu_j = np.einsum('vab,vb->va', cov[j], u)
+        var = np.maximum(np.einsum('va,va->v', u, cu_i + cu_j), 1e-12)
         lam = (self._entry_mean[entry] - mu) / var
         pa = pos[i] - lam[:, None] * cu_i
         pb = pos[j] + lam[:, None] * cu_j
@@ -390,8 +390,8 @@ class AspectMatcher:
         e3 = np.cross(e1, e2)
         frames = np.stack([e1, e2, e3], axis=-1)
         mid = 0.5 * (pa + pb)
-        centres = mid + np.einsum("vij,vj->vi", frames, self._entry_offset[entry])
-        rot = np.einsum("vij,vjk->vik", frames, self._entry_frame_t[entry])
+        centres = mid + np.einsum('vij,vj->vi', frames, self._entry_offset[entry])
+        rot = np.einsum('vij,vjk->vik', frames, self._entry_frame_t[entry])
         spread = np.sqrt(tr / 4.0)
         return centres, rot, agree, spread, rot_var
 
@@ -433,7 +433,7 @@ class AspectMatcher:
         ends_s = np.concatenate([self._entry_sa[entry[sv]], self._entry_sb[entry[sv]]])
         ends_f = np.concatenate([pi[vp[sv]], pj[vp[sv]]])
         ends_w = np.concatenate([weight[sv], weight[sv]])
-        order = np.argsort(-ends_w, kind="stable")
+        order = np.argsort(-ends_w, kind='stable')
         key = ends_h[order] * 3 + ends_s[order]
         ukey, first = np.unique(key, return_index=True)
         slot_feature = np.full((n_h, 3), -1, dtype=np.int64)
@@ -451,7 +451,7 @@ class AspectMatcher:
         order = cand[np.lexsort((-support[cand], code[cand]))]
         _, first = np.unique(code[order], return_index=True)
         best = order[first]
-        best = best[np.argsort(-support[best], kind="stable")][:self.max_hypotheses]
+        best = best[np.argsort(-support[best], kind='stable')][:self.max_hypotheses]
         # Orientation: batched weighted Kabsch of model face directions and normals.
         sf = slot_feature[best]
         mask = (sf >= 0).astype(np.float64)                                  # (B, 3)
@@ -459,7 +459,7 @@ class AspectMatcher:
         model = self._slot_dir_table[types[best]]                            # (B, 3, 3)
         obs_dir = (pos[fidx] - centre[best][:, None, :]) / (0.5 * self.cube_size)
         obs_nrm = nrm[fidx]
-        hmat = np.einsum("bs,bsi,bsj->bij", mask, model, obs_dir + obs_nrm)
+        hmat = np.einsum('bs,bsi,bsj->bij', mask, model, obs_dir + obs_nrm)
         u, _, vt = np.linalg.svd(hmat)
         v = np.transpose(vt, (0, 2, 1))
         ut = np.transpose(u, (0, 2, 1))
@@ -467,12 +467,12 @@ class AspectMatcher:
         d[d == 0] = 1.0
         rotation = v @ (np.array([1.0, 1.0, 0.0])[None, :, None] * ut
                         + np.array([0.0, 0.0, 1.0])[None, :, None] * d[:, None, None] * ut)
-        pred = np.einsum("bij,bsj->bsi", rotation, model)
+        pred = np.einsum('bij,bsj->bsi', rotation, model)
         resid = (np.sum((obs_dir - pred) ** 2, axis=2) + np.sum((obs_nrm - pred) ** 2, axis=2))
         n_used = mask.sum(axis=1)
         rot_var = np.maximum(np.sum(mask * resid, axis=1) / np.maximum(2 * n_used - 1, 1), 1e-6)
         # Position: mean feature covariance / n, plus the votes' weighted scatter / n_votes.
-        feat_cov = np.einsum("bs,bsij->bij", mask, cov[fidx]) / (n_used ** 2)[:, None, None]
+        feat_cov = np.einsum('bs,bsij->bij', mask, cov[fidx]) / (n_used ** 2)[:, None, None]
         spread = centres[sv] - centre[vote_h[sv]]
         outer = (weight[sv, None] * (spread[:, :, None] * spread[:, None, :]).reshape(-1, 9))
         scatter = np.stack([np.bincount(vote_h[sv], weights=outer[:, k], minlength=n_h)

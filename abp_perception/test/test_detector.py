@@ -30,9 +30,9 @@ def gray_image():
     return rng.integers(0, 256, size=(6, 5), dtype=np.uint8)
 
 
-@pytest.mark.parametrize("encoding, code", [
-    ("bgr8", cv2.COLOR_GRAY2BGR), ("rgb8", cv2.COLOR_GRAY2RGB),
-    ("bgra8", cv2.COLOR_GRAY2BGRA), ("rgba8", cv2.COLOR_GRAY2RGBA),
+@pytest.mark.parametrize('encoding, code', [
+    ('bgr8', cv2.COLOR_GRAY2BGR), ('rgb8', cv2.COLOR_GRAY2RGB),
+    ('bgra8', cv2.COLOR_GRAY2BGRA), ('rgba8', cv2.COLOR_GRAY2RGBA),
 ])
 def test_colour_encodings_convert_to_the_same_grey(gray_image, encoding, code):
     colour = cv2.cvtColor(gray_image, code)
@@ -44,8 +44,8 @@ def test_colour_encodings_convert_to_the_same_grey(gray_image, encoding, code):
 def test_channel_order_matters():
     bgr = np.zeros((2, 2, 3), np.uint8)
     bgr[..., 2] = 200                                   # pure red in BGR
-    as_bgr = image_to_gray("bgr8", 2, 2, 6, bgr.tobytes())
-    as_rgb = image_to_gray("rgb8", 2, 2, 6, bgr.tobytes())
+    as_bgr = image_to_gray('bgr8', 2, 2, 6, bgr.tobytes())
+    as_rgb = image_to_gray('rgb8', 2, 2, 6, bgr.tobytes())
     assert as_bgr[0, 0] == cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)[0, 0]
     assert as_bgr[0, 0] != as_rgb[0, 0]
 
@@ -55,16 +55,16 @@ def test_mono8_with_row_padding_and_array_data(gray_image):
     h, w = gray_image.shape
     padded = np.zeros((h, w + 3), np.uint8)
     padded[:, :w] = gray_image
-    out = image_to_gray("mono8", h, w, w + 3, array.array("B", padded.tobytes()))
+    out = image_to_gray('mono8', h, w, w + 3, array.array('B', padded.tobytes()))
     np.testing.assert_array_equal(out, gray_image)
 
 
-@pytest.mark.parametrize("encoding, step, size, message", [
-    ("yuv422", 10, 60, "unsupported image encoding 'yuv422'"),
-    ("mono16", 10, 60, "unsupported image encoding 'mono16'"),
-    ("bayer_rggb8", 5, 30, "unsupported"),
-    ("bgr8", 5, 30, "step 5 is smaller"),
-    ("mono8", 5, 20, "expected step x height = 30"),
+@pytest.mark.parametrize('encoding, step, size, message', [
+    ('yuv422', 10, 60, "unsupported image encoding 'yuv422'"),
+    ('mono16', 10, 60, "unsupported image encoding 'mono16'"),
+    ('bayer_rggb8', 5, 30, 'unsupported'),
+    ('bgr8', 5, 30, 'step 5 is smaller'),
+    ('mono8', 5, 20, 'expected step x height = 30'),
 ])
 def test_bad_images_are_refused_clearly(encoding, step, size, message):
     with pytest.raises(ImageEncodingError, match=message):
@@ -72,9 +72,9 @@ def test_bad_images_are_refused_clearly(encoding, step, size, message):
 
 
 def test_unknown_dictionary_is_refused():
-    assert dictionary_id("DICT_4X4_50") == cv2.aruco.DICT_4X4_50
-    with pytest.raises(ValueError, match="unknown ArUco dictionary"):
-        TagDetector(np.eye(3), dictionary="DICT_BOGUS")
+    assert dictionary_id('DICT_4X4_50') == cv2.aruco.DICT_4X4_50
+    with pytest.raises(ValueError, match='unknown ArUco dictionary'):
+        TagDetector(np.eye(3), dictionary='DICT_BOGUS')
 
 
 def test_covariance_model_grows_with_reprojection_error_and_rotates():
@@ -99,15 +99,15 @@ def test_empty_image_gives_no_detections(detector):
 
 def test_degenerate_and_non_finite_quads_are_dropped_with_a_reason(detector):
     nan_quad = np.full((4, 2), np.nan)
-    assert "non-finite" in detector._pose(3, nan_quad).reason
+    assert 'non-finite' in detector._pose(3, nan_quad).reason
     tiny = np.array([[10.0, 10.0], [12.0, 10.0], [12.0, 12.0], [10.0, 12.0]])
-    assert "degenerate" in detector._pose(3, tiny).reason
+    assert 'degenerate' in detector._pose(3, tiny).reason
     mirrored = tiny[::-1] * 20
-    assert "non-convex or mirrored" in detector._pose(3, mirrored).reason
+    assert 'non-convex or mirrored' in detector._pose(3, mirrored).reason
 
 
 def test_non_image_input_is_refused(detector):
-    with pytest.raises(ValueError, match="2-D uint8"):
+    with pytest.raises(ValueError, match='2-D uint8'):
         detector.detect(np.zeros((4, 4, 3), np.uint8))
 
 

@@ -70,7 +70,7 @@ def test_lookup_table_lists_every_slot_pair_of_every_aspect(full_models, full_ma
 
 
 def test_bad_matcher_settings_are_refused(full_models):
-    for kwargs in ({"voxel_size": 0.0}, {"orientation_sigma_deg": 0.0},
-                   {"max_hypotheses": 0}, {"distance_samples": -1}):
+    for kwargs in ({'voxel_size': 0.0}, {'orientation_sigma_deg': 0.0},
+                   {'max_hypotheses': 0}, {'distance_samples': -1}):
         with pytest.raises(ValueError):
             AspectMatcher(full_models, **kwargs)

@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
-if not hasattr(pytest.importorskip("abp_msgs.msg"), "AspectObservation"):
-    pytest.skip("abp_msgs is not built: run scripts/bootstrap.sh and source scripts/env.sh",
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
+if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
+    pytest.skip('abp_msgs is not built: run scripts/bootstrap.sh and source scripts/env.sh',
                 allow_module_level=True)
 
 from builtin_interfaces.msg import Time  # noqa: E402
@@ -25,12 +25,12 @@ from abp_msgs.msg import TagDetectionArray  # noqa: E402
 
 
 def executable(name):
-    prefix = ament_index.get_package_prefix("abp_perception")
-    return os.path.join(prefix, "lib", "abp_perception", name)
+    prefix = ament_index.get_package_prefix('abp_perception')
+    return os.path.join(prefix, 'lib', 'abp_perception', name)
 
 
 def camera_info_msg(cam):
-    msg = CameraInfo(width=cam.width, height=cam.height, distortion_model="plumb_bob")
+    msg = CameraInfo(width=cam.width, height=cam.height, distortion_model='plumb_bob')
     msg.header.frame_id = cam.frame_id
     msg.k = [float(v) for v in cam.K.ravel()]
     msg.d = [float(v) for v in cam.D]
@@ -38,7 +38,7 @@ def camera_info_msg(cam):
     return msg
 
 
-def image_msg(gray, frame_id, stamp, encoding="mono8", bytes_per_pixel=1):
+def image_msg(gray, frame_id, stamp, encoding='mono8', bytes_per_pixel=1):
     h, w = gray.shape[0], gray.shape[1] // bytes_per_pixel
     msg = Image(height=h, width=w, encoding=encoding, step=gray.shape[1], is_bigendian=0)
     msg.header.frame_id = frame_id
@@ -49,7 +49,7 @@ def image_msg(gray, frame_id, stamp, encoding="mono8", bytes_per_pixel=1):
 
 @pytest.fixture
 def tester(rclpy_context):
-    node = rclpy.create_node("perception_tester", context=rclpy_context)
+    node = rclpy.create_node('perception_tester', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     yield node, executor
@@ -59,7 +59,7 @@ def tester(rclpy_context):
 
 def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
     cam = camera_intrinsics()
-    proc = ros_processes.start([executable("artag_detector")])
+    proc = ros_processes.start([executable('artag_detector')])
     node, executor = tester
     image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
     info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
@@ -80,19 +80,19 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
                 ros_processes.wait_for_line(proc, text, 0.3)
                 return True
             except AssertionError:
-                assert proc.poll() is None, "detector died"
+                assert proc.poll() is None, 'detector died'
         return False
 
     # No camera_info yet: skipped with a warning.
     assert publish_until_logged(
         lambda: image_pub.publish(image_msg(gray, cam.frame_id, Time(sec=1))),
-        "no valid camera_info")
+        'no valid camera_info')
 
     # Unsupported encoding: skipped with an error naming it.
     def bad_encoding():
         info_pub.publish(camera_info_msg(cam))
         image_pub.publish(image_msg(np.zeros((cam.height, cam.width * 2), np.uint8),
-                                    cam.frame_id, Time(sec=2), encoding="yuv422",
+                                    cam.frame_id, Time(sec=2), encoding='yuv422',
                                     bytes_per_pixel=2))
 
     assert publish_until_logged(bad_encoding, "unsupported image encoding 'yuv422'")
@@ -109,26 +109,26 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
     assert proc.poll() is None
 
 
-@pytest.mark.parametrize("name, override, expected", [
-    ("artag_detector", "dictionary:=DICT_BOGUS", "dictionary"),
-    ("artag_detector", "marker_size:=0.0", "marker_size"),
-    ("aspect_matcher", "model_set:=bogus", "model_set"),
-    ("aspect_matcher", "model_file:=/nonexistent/models.npz", "models.npz"),
+@pytest.mark.parametrize('name, override, expected', [
+    ('artag_detector', 'dictionary:=DICT_BOGUS', 'dictionary'),
+    ('artag_detector', 'marker_size:=0.0', 'marker_size'),
+    ('aspect_matcher', 'model_set:=bogus', 'model_set'),
+    ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),
 ])
 def test_bad_parameters_are_refused_clearly(name, override, expected):
-    result = subprocess.run([executable(name), "--ros-args", "-p", override],
+    result = subprocess.run([executable(name), '--ros-args', '-p', override],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
-    assert "configuration error" in result.stderr and expected in result.stderr
-    assert "Traceback" not in result.stderr
+    assert 'configuration error' in result.stderr and expected in result.stderr
+    assert 'Traceback' not in result.stderr
 
 
 def test_nodes_under_a_namespace_use_its_topics(ros_processes, tester, spin):
-    ros_processes.start([executable("artag_detector"), "--ros-args", "-r", "__ns:=/robot1"])
-    ros_processes.start([executable("aspect_matcher"), "--ros-args", "-r", "__ns:=/robot1"])
+    ros_processes.start([executable('artag_detector'), '--ros-args', '-r', '__ns:=/robot1'])
+    ros_processes.start([executable('aspect_matcher'), '--ros-args', '-r', '__ns:=/robot1'])
     node, executor = tester
-    assert spin(executor, lambda: node.count_publishers("/robot1/abp/aspect_observation") > 0
-                and node.count_publishers("/robot1/abp/tag_detections") > 0
-                and node.count_subscribers("/robot1/camera/image_raw") > 0, 30)
-    assert node.count_publishers("/abp/tag_detections") == 0
-    assert node.count_subscribers("/camera/image_raw") == 0
+    assert spin(executor, lambda: node.count_publishers('/robot1/abp/aspect_observation') > 0
+                and node.count_publishers('/robot1/abp/tag_detections') > 0
+                and node.count_subscribers('/robot1/camera/image_raw') > 0, 30)
+    assert node.count_publishers('/abp/tag_detections') == 0
+    assert node.count_subscribers('/camera/image_raw') == 0

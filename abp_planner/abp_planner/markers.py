@@ -17,11 +17,11 @@ def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE):
     ((frame_id, geometry_msgs/Pose) or None)."""
     markers = MarkerArray()
     if cube_pose is None:
-        markers.markers.append(Marker(ns="abp", id=0, action=Marker.DELETEALL))
+        markers.markers.append(Marker(ns='abp', id=0, action=Marker.DELETEALL))
         return markers
     frame_id, pose = cube_pose
-    cube = Marker(ns="abp_cube", id=0, type=Marker.CUBE, action=Marker.ADD, pose=pose)
-    cube.header.frame_id = frame_id or "base_link"
+    cube = Marker(ns='abp_cube', id=0, type=Marker.CUBE, action=Marker.ADD, pose=pose)
+    cube.header.frame_id = frame_id or 'base_link'
     cube.header.stamp = stamp
     cube.scale.x = cube.scale.y = cube.scale.z = cube_edge
     confidence = float(belief.probabilities[0]) if belief and belief.probabilities else 0.0
@@ -29,7 +29,7 @@ def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE):
     cube.color = ColorRGBA(r=1.0 - confidence, g=confidence, b=0.2, a=0.6)
     markers.markers.append(cube)
 
-    text = Marker(ns="abp_belief", id=1, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD)
+    text = Marker(ns='abp_belief', id=1, type=Marker.TEXT_VIEW_FACING, action=Marker.ADD)
     text.header = cube.header
     text.pose = Pose()
     text.pose.position.x = pose.position.x
@@ -39,11 +39,11 @@ def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE):
     text.scale.z = 0.04
     text.color = ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
     if belief and belief.object_ids:
-        lines = [f"{oid}: {p:.2f}" for oid, p in
+        lines = [f'{oid}: {p:.2f}' for oid, p in
                  zip(belief.object_ids[:TOP_OBJECTS_SHOWN], belief.probabilities)]
-        lines.append(f"H = {belief.entropy:.2f} bits, step {belief.step}")
-        text.text = "\n".join(lines)
+        lines.append(f'H = {belief.entropy:.2f} bits, step {belief.step}')
+        text.text = '\n'.join(lines)
     else:
-        text.text = "no belief yet"
+        text.text = 'no belief yet'
     markers.markers.append(text)
     return markers

@@ -31,7 +31,7 @@ import numpy as np
 
 from abp_belief.cube import ACTIONS, NOMINAL_DURATION_S, OPPOSITE_FACE, STATES_PER_MODEL
 from abp_belief.filter import BeliefFilter
-from abp_planner.stopping import StoppingRule
+from abp_planner.stopping import StopDecision, StoppingRule
 
 MAX_ACTIONS = 30
 STOP_POSTERIOR = 0.95
@@ -181,7 +181,7 @@ def run_trial(
         identified = actions_to_stop is not None
     else:
         counted = actions
-        identified = not reason.startswith("action limit")
+        identified = StopDecision(stop, reason).identified
     return TrialResult(
         true_model=true_model,
         initial_state=initial_state,

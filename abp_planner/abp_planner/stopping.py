@@ -83,9 +83,17 @@ DEFAULT_MAX_ACTIONS = 30
 MAX_TWIN_CLASS = 16
 
 
+ACTION_LIMIT = "action limit"  # reason prefix of a stop without an answer
+
+
 class StopDecision(NamedTuple):
     stop: bool
     reason: str
+
+    @property
+    def identified(self) -> bool:
+        """Stopped because the answer is certain enough (not for the action limit)."""
+        return self.stop and not self.reason.startswith(ACTION_LIMIT)
 
 
 def fault_likelihood_ratio(observation_params: ObservationParams | None = None,
@@ -205,7 +213,15 @@ class StoppingRule:
         return float(fault_discounted_error(marginal.max() / marginal.sum(), self.fault_ratio))
 
     def check(self, belief, actions_taken: int = 0) -> StopDecision:
-        marginal = _object_marginal(belief)
+        """Verdict on the (N,) node belief after ``actions_taken`` actions."""
+        return self._check(_object_marginal(belief), belief, actions_taken)
+
+    def check_marginal(self, object_marginal, actions_taken: int = 0) -> StopDecision:
+        """The same verdict from the (M,) object marginal only (e.g. abp_msgs/Belief's
+        probabilities); the twin test needs node beliefs and is skipped."""
+        return self._check(np.asarray(object_marginal, dtype=np.float64), None, actions_taken)
+
+    def _check(self, marginal, belief, actions_taken) -> StopDecision:
         marginal = marginal / marginal.sum()
         top = int(np.argmax(marginal))
         p_top = float(marginal[top])
@@ -218,7 +234,7 @@ class StoppingRule:
                 discount = " after one-fault discount" if self.fault_margin else ""
                 return StopDecision(True, f"model {top}: P(wrong) {error:.2e} <= "
                                     f"{self.target_error:g}{discount} (posterior {p_top:.6f})")
-            twins = self.twin_class(belief, top)
+            twins = self.twin_class(belief, top) if belief is not None else np.array([top])
             if twins.size > 1:
                 p_class = float(marginal[twins].sum())
                 error = float(fault_discounted_error(p_class, self.fault_ratio))
@@ -227,7 +243,7 @@ class StoppingRule:
                                         f"{', '.join(map(str, twins))}: P(outside) {error:.2e} "
                                         f"<= {self.target_error:g}; reporting model {top}")
         if actions_taken >= self.max_actions:
-            return StopDecision(True, f"action limit {self.max_actions} reached "
+            return StopDecision(True, f"{ACTION_LIMIT} {self.max_actions} reached "
                                 f"(model {top}, posterior {p_top:.4f})")
         return StopDecision(False, f"model {top}: posterior {p_top:.4f}, continuing")
 

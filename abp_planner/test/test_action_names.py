@@ -1,6 +1,6 @@
-'''The action vocabulary exists twice, for two audiences: abp_belief.cube.ACTIONS (the
+"""The action vocabulary exists twice, for two audiences: abp_belief.cube.ACTIONS (the
 science) and the string constants of abp_msgs/ExecutedAction (the interface). They must
-agree, and the planner node must map every one of them to a skill.'''
+agree, and the planner node must map every one of them to a skill."""
 
 import pytest
 

@@ -10,7 +10,7 @@ from abp_planner.planner import ActiveBeliefPlanner, RandomPlanner, make_planner
 from abp_planner.simulator import run_trial, trial_rngs
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def tiny_set():
     # Robot set: 18 visual cubes + two groups of 6 eccentric twins. Take two
     # plain cubes and a twin group so manual actions matter.
@@ -79,7 +79,7 @@ def _random_beliefs(ms, rng, count):
     return beliefs
 
 
-@pytest.mark.parametrize("alpha", [0.1, 0.0, 0.5])
+@pytest.mark.parametrize('alpha', [0.1, 0.0, 0.5])
 def test_one_ply_matches_brute_force(tiny_set, alpha):
     planner = ActiveBeliefPlanner(tiny_set, alpha=alpha)
     for belief in _random_beliefs(tiny_set, np.random.default_rng(7), 6):
@@ -129,18 +129,18 @@ def test_random_planner_seeded(tiny_set):
     seq_b = [b.choose(uniform).action for _ in range(20)]
     assert seq_a == seq_b and seq_a[0] == first[0]
     assert len(set(seq_a)) > 3
-    only_push = RandomPlanner(seed=1).choose(uniform, feasible=lambda a: a == "PUSH")
-    assert only_push.action == "PUSH"
+    only_push = RandomPlanner(seed=1).choose(uniform, feasible=lambda a: a == 'PUSH')
+    assert only_push.action == 'PUSH'
 
 
-@pytest.mark.parametrize("which", [1, 2])
+@pytest.mark.parametrize('which', [1, 2])
 def test_multi_ply(tiny_set, which):
     belief = _random_beliefs(tiny_set, np.random.default_rng(11), 3)[which]
     one = ActiveBeliefPlanner(tiny_set, plies=1)
     same = ActiveBeliefPlanner(tiny_set, plies=1, lookahead_tail=0.5, branch_min_prob=0.5)
     np.testing.assert_allclose(one.information_gain(belief), same.information_gain(belief))
-    two = make_planner("abp2", tiny_set)
-    three = make_planner("abp3", tiny_set)
+    two = make_planner('abp2', tiny_set)
+    three = make_planner('abp3', tiny_set)
     for planner in (two, three):
         decision = planner.choose(belief)
         assert decision.action in ACTIONS
@@ -151,7 +151,7 @@ def test_multi_ply(tiny_set, which):
 
 def test_cost_aware_scores_per_second(tiny_set):
     belief = _random_beliefs(tiny_set, np.random.default_rng(5), 2)[1]
-    cost = make_planner("cost", tiny_set)
+    cost = make_planner('cost', tiny_set)
     d = cost.choose(belief)
     np.testing.assert_allclose(d.score, d.information_gain / cost.duration)
 
@@ -161,7 +161,7 @@ def test_short_simulation_identifies_object(tiny_set):
     results = []
     for trial in range(6):
         truth_rng, noise_rng = trial_rngs(0, trial)
-        result = run_trial(tiny_set, make_planner("abp", tiny_set), truth_rng, noise_rng,
+        result = run_trial(tiny_set, make_planner('abp', tiny_set), truth_rng, noise_rng,
                            belief_filter=bf)
         assert result.identified and result.num_actions <= 10
         assert len(result.true_posterior) == result.num_actions + 1
@@ -170,8 +170,8 @@ def test_short_simulation_identifies_object(tiny_set):
     # Seed 0, trial 1 is the rare honest error: FLIP fails (p = 0.1) and a false tag
     # detection happens to show exactly what another twin would have shown.
     assert sum(r.correct for r in results) >= 5
-    again = run_trial(tiny_set, make_planner("abp", tiny_set), *trial_rngs(0, 4), belief_filter=bf)
-    assert again.as_dict() | {"latency_ms": []} == results[4].as_dict() | {"latency_ms": []}
+    again = run_trial(tiny_set, make_planner('abp', tiny_set), *trial_rngs(0, 4), belief_filter=bf)
+    assert again.as_dict() | {'latency_ms': []} == results[4].as_dict() | {'latency_ms': []}
 
 
 def test_hidden_heavy_face_twins():
@@ -210,7 +210,7 @@ def _two_step_by_composition(ms, belief, alpha):
     return open_loop, closed, h0
 
 
-@pytest.mark.parametrize("which", [1, 2])  # wide (mat-vec) and narrow (gather) supports
+@pytest.mark.parametrize('which', [1, 2])  # wide (mat-vec) and narrow (gather) supports
 def test_two_ply_and_cost_match_composition(tiny_set, which):
     belief = _random_beliefs(tiny_set, np.random.default_rng(13), 3)[which]
     exact = dict(lookahead_tail=0.0, branch_min_prob=0.0, support_floor=0.0)
@@ -223,4 +223,4 @@ def test_two_ply_and_cost_match_composition(tiny_set, which):
     expected = np.maximum(gain1 / d, ((h0 - open_loop) / (d[:, None] + d[None, :])).max(axis=1))
     np.testing.assert_allclose(score, expected, atol=1e-12)
     np.testing.assert_allclose(gain1, brute_force_ig(tiny_set, belief, 0.1), atol=1e-9)
-    assert make_planner("cost", tiny_set).choose(belief).action in ACTIONS
+    assert make_planner('cost', tiny_set).choose(belief).action in ACTIONS

@@ -9,8 +9,8 @@ import sys
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 
 from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
@@ -22,35 +22,35 @@ from abp_msgs.action import Recognize  # noqa: E402
 from abp_msgs.msg import ExecutedAction, PlanStep  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
-WORLD = REPO / "tests" / "helpers" / "model_world_node.py"
+WORLD = REPO / 'tests' / 'helpers' / 'model_world_node.py'
 SEED = 5
 RELIABLE = reliable(50)  # the test reads every message of an episode
 
 
 def executable(package, name):
-    return os.path.join(ament_index.get_package_prefix(package), "lib", package, name)
+    return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
-def start_graph(ros_processes, true_model, fail_action="", infeasible=""):
-    params = ["--ros-args", "-p", "model_set:=robot", "-p", f"seed:={SEED}"]
-    ros_processes.start([executable("abp_belief", "belief"), *params])
-    ros_processes.start([executable("abp_planner", "planner"), *params,
-                         "-p", "observation_timeout:=5.0"])
-    world = ros_processes.start([sys.executable, str(WORLD), "robot", str(SEED),
+def start_graph(ros_processes, true_model, fail_action='', infeasible=''):
+    params = ['--ros-args', '-p', 'model_set:=robot', '-p', f'seed:={SEED}']
+    ros_processes.start([executable('abp_belief', 'belief'), *params])
+    ros_processes.start([executable('abp_planner', 'planner'), *params,
+                         '-p', 'observation_timeout:=5.0'])
+    world = ros_processes.start([sys.executable, str(WORLD), 'robot', str(SEED),
                                  str(true_model), fail_action, infeasible])
-    ros_processes.wait_for_line(world, "READY", timeout=30)
+    ros_processes.wait_for_line(world, 'READY', timeout=30)
     return world
 
 
 @pytest.fixture
 def client(rclpy_context):
-    node = rclpy.create_node("recognize_tester", context=rclpy_context)
+    node = rclpy.create_node('recognize_tester', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
-    action_client = ActionClient(node, Recognize, "/abp/recognize")
+    action_client = ActionClient(node, Recognize, '/abp/recognize')
     executed, plans = [], []
-    node.create_subscription(ExecutedAction, "/abp/executed_action", executed.append, RELIABLE)
-    node.create_subscription(PlanStep, "/abp/plan", plans.append, RELIABLE)
+    node.create_subscription(ExecutedAction, '/abp/executed_action', executed.append, RELIABLE)
+    node.create_subscription(PlanStep, '/abp/plan', plans.append, RELIABLE)
     yield node, executor, action_client, executed, plans
     action_client.destroy()
     executor.shutdown()
@@ -58,7 +58,7 @@ def client(rclpy_context):
 
 
 def recognize(executor, action_client, spin, goal, feedback=None, timeout=120):
-    assert spin(executor, action_client.server_is_ready, 30), "no /abp/recognize server"
+    assert spin(executor, action_client.server_is_ready, 30), 'no /abp/recognize server'
     send = action_client.send_goal_async(
         goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback is not None
         else None)
@@ -66,17 +66,17 @@ def recognize(executor, action_client, spin, goal, feedback=None, timeout=120):
     handle = send.result()
     assert handle.accepted
     result = handle.get_result_async()
-    assert spin(executor, result.done, timeout), "recognition did not finish"
+    assert spin(executor, result.done, timeout), 'recognition did not finish'
     return result.result()
 
 
-@pytest.mark.parametrize("true_model", [0, 11])
+@pytest.mark.parametrize('true_model', [0, 11])
 def test_recognize_identifies_the_true_model(ros_processes, client, spin, true_model):
     node, executor, action_client, executed, plans = client
     start_graph(ros_processes, true_model)
     feedback = []
     response = recognize(executor, action_client, spin,
-                         Recognize.Goal(planner_mode="abp", max_actions=30,
+                         Recognize.Goal(planner_mode='abp', max_actions=30,
                                         posterior_threshold=0.99), feedback)
     models = robot_set(seed=SEED)
     assert response.status == GoalStatus.STATUS_SUCCEEDED
@@ -96,15 +96,15 @@ def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, cli
     # FLIP is refused by the feasibility check; the planner must work around both.
     models = robot_set(seed=SEED)
     twin = int(next(i for i in range(models.num_models) if models.mass[i] != 0))
-    start_graph(ros_processes, twin, fail_action="LIFT", infeasible="FLIP")
+    start_graph(ros_processes, twin, fail_action='LIFT', infeasible='FLIP')
     response = recognize(executor, action_client, spin,
-                         Recognize.Goal(planner_mode="abp", max_actions=30,
+                         Recognize.Goal(planner_mode='abp', max_actions=30,
                                         posterior_threshold=0.99))
     assert response.status == GoalStatus.STATUS_SUCCEEDED
-    assert not any(e.action == "FLIP" for e in executed)
+    assert not any(e.action == 'FLIP' for e in executed)
     assert response.result.object_id == models.names[twin], [e.action for e in executed]
     failed = [e for e in executed if not e.success]
-    assert all(e.action == "LIFT" and "slipped" in e.reason for e in failed)
+    assert all(e.action == 'LIFT' and 'slipped' in e.reason for e in failed)
     # After a failure the next decision is a different action: it never stops dead.
     for before, after in zip(executed, executed[1:]):
         if not before.success:
@@ -125,11 +125,11 @@ def test_cancel_stops_the_loop(ros_processes, client, spin):
     result = handle.get_result_async()
     assert spin(executor, result.done, 30)
     assert result.result().status == GoalStatus.STATUS_CANCELED
-    assert result.result().result.reason == "cancelled"
+    assert result.result().result.reason == 'cancelled'
 
 
 def test_bad_planner_mode_is_refused():
-    result = subprocess.run([executable("abp_planner", "planner"), "--ros-args", "-p",
-                             "planner_mode:=greedy"], capture_output=True, text=True, timeout=60)
+    result = subprocess.run([executable('abp_planner', 'planner'), '--ros-args', '-p',
+                             'planner_mode:=greedy'], capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
-    assert "planner_mode" in result.stderr and "Traceback" not in result.stderr
+    assert 'planner_mode' in result.stderr and 'Traceback' not in result.stderr

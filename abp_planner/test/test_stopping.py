@@ -57,8 +57,13 @@ def test_error_rule_thresholds():
     stop, reason = rule.check(_belief(10, {2: 0.998, 3: 0.002}), 3)
     assert stop and "model 2" in reason
     assert not rule.check(_belief(10, {2: 0.96, 3: 0.04}), 3).stop   # the old rule stops here
-    stop, reason = rule.check(_belief(10, {2: 0.6, 3: 0.4}), 30)
-    assert stop and reason.startswith("action limit")
+    assert rule.check(_belief(10, {2: 0.998, 3: 0.002})).identified
+    marginal = np.zeros(10)
+    marginal[[2, 3]] = 0.998, 0.002
+    assert rule.check_marginal(marginal, 3) == rule.check(_belief(10, {2: 0.998, 3: 0.002}), 3)
+    decision = rule.check(_belief(10, {2: 0.6, 3: 0.4}), 30)
+    assert decision.stop and decision.reason.startswith("action limit")
+    assert not decision.identified
     margin = StoppingRule(kind="error", target_error=0.003, fault_margin=True)
     assert not margin.check(_belief(10, {2: 0.998, 3: 0.002})).stop
     assert margin.check(_belief(10, {2: 1 - 1e-6, 3: 1e-6})).stop

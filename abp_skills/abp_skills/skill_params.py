@@ -34,7 +34,7 @@ NODE_SPECS = (
               'Seconds a new goal waits to detect a simultaneous goal in another skills '
               'process.', (0.0, 5.0)),
     ParamSpec('trajectory_start_delay', DOUBLE, 0.1,
-              'Seconds ahead of now of the common header.stamp of the controllers\' '
+              "Seconds ahead of now of the common header.stamp of the controllers' "
               'trajectories; 0 = zero stamp (start on receipt).', (0.0, 5.0)),
     ParamSpec('orbit_radius', DOUBLE, 0.0,
               'Default ORBIT radius (m) when the goal gives none; 0 = keep the current '
@@ -51,7 +51,7 @@ CONFIG_DESCRIPTIONS = {
     'support_height': 'm, height of the surface the cube rests on, in base_link.',
     'use_estimated_height': 'Take the cube centre height from the estimate (else '
                             'support_height + cube_size / 2).',
-    'hand_radius': 'm, radius of the hands\' contact balls (sim bridge: 0.03).',
+    'hand_radius': "m, radius of the hands' contact balls (sim bridge: 0.03).",
     'grasp_squeeze': 'm, how far a grasp presses into the faces.',
     'approach_gap': 'm, free space between hand and face before contact and after release.',
     'hover_height': 'm, via point above the pre-contact posture.',
@@ -61,7 +61,7 @@ CONFIG_DESCRIPTIONS = {
     'flip_grasp_offset': 'm, FLIP contacts this far from the face centres towards the robot.',
     'flip_up': 'm, FLIP roll: hands up.',
     'flip_back': 'm, FLIP roll: hands back towards the robot.',
-    'flip_roll_deg': 'Default FLIP roll angle (shape of the hands\' roll path).',
+    'flip_roll_deg': "Default FLIP roll angle (shape of the hands' roll path).",
     'joint_velocity_scale': 'Fraction of the URDF velocity limits used by trajectories.',
     'joint_acceleration': 'rad/s^2, joint acceleration limit.',
     'joint_jerk': 'rad/s^3, joint jerk limit.',

@@ -13,8 +13,8 @@ import os
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
@@ -27,39 +27,39 @@ from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 # overloaded machine those can lag the sim clock. A real fault fails every rerun.
 pytestmark = pytest.mark.flaky(reruns=2, reruns_delay=2)
 
-FACE_TAGS = "[0, 1, 2, 3, 4, 5]"  # body faces +x -x +y -y +z -z
+FACE_TAGS = '[0, 1, 2, 3, 4, 5]'  # body faces +x -x +y -y +z -z
 # mass index: 0 uniform, 1 + body face (docs/MODEL.md)
 UNIFORM, HEAVY_PLUS_Y, HEAVY_TOP = 0, 3, 5
 
 
 def executable(package, name):
-    return os.path.join(ament_index.get_package_prefix(package), "lib", package, name)
+    return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
 @pytest.fixture
 def sim_graph(ros_processes, rclpy_context):
     """Start the sim bridge (given hidden mass), perception and the skill servers."""
-    node = rclpy.create_node("skills_in_sim_tester", context=rclpy_context)
+    node = rclpy.create_node('skills_in_sim_tester', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     truth = []
     estimates = []
-    node.create_subscription(SimGroundTruth, "/abp/sim/ground_truth", truth.append, LATCHED)
-    node.create_subscription(AspectObservation, "/abp/aspect_observation",
+    node.create_subscription(SimGroundTruth, '/abp/sim/ground_truth', truth.append, LATCHED)
+    node.create_subscription(AspectObservation, '/abp/aspect_observation',
                              lambda m: m.hypotheses and estimates.append(m), RELIABLE)
 
     def start(mass_index):
-        sim_time = ["-p", "use_sim_time:=true"]
-        ros_processes.start([executable("abp_sim_bridge", "sim_bridge"), "--ros-args",
-                             "-p", f"face_tags:={FACE_TAGS}", "-p", f"mass_index:={mass_index}",
-                             "-p", "speedup:=5.0",
+        sim_time = ['-p', 'use_sim_time:=true']
+        ros_processes.start([executable('abp_sim_bridge', 'sim_bridge'), '--ros-args',
+                             '-p', f'face_tags:={FACE_TAGS}', '-p', f'mass_index:={mass_index}',
+                             '-p', 'speedup:=5.0',
                              # Body +x towards the robot: the initial state is (up 4, yaw 0).
-                             "-p", "cube_yaw:=3.141592653589793"])
-        ros_processes.start([executable("abp_perception", "artag_detector"), "--ros-args",
+                             '-p', 'cube_yaw:=3.141592653589793'])
+        ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',
                              *sim_time])
-        ros_processes.start([executable("abp_perception", "aspect_matcher"), "--ros-args",
+        ros_processes.start([executable('abp_perception', 'aspect_matcher'), '--ros-args',
                              *sim_time])
-        ros_processes.start([executable("abp_skills", "skill_servers"), "--ros-args",
+        ros_processes.start([executable('abp_skills', 'skill_servers'), '--ros-args',
                              *sim_time])
         return node, executor, truth, estimates
 
@@ -69,14 +69,14 @@ def sim_graph(ros_processes, rclpy_context):
 
 
 def run_skill(node, executor, spin, action_type, name, goal):
-    client = ActionClient(node, action_type, f"/abp/skills/{name}")
-    assert spin(executor, client.server_is_ready, 60), f"no /abp/skills/{name} server"
+    client = ActionClient(node, action_type, f'/abp/skills/{name}')
+    assert spin(executor, client.server_is_ready, 60), f'no /abp/skills/{name} server'
     send = client.send_goal_async(goal)
     assert spin(executor, send.done, 30)
     handle = send.result()
     assert handle.accepted
     result = handle.get_result_async()
-    assert spin(executor, result.done, 180), f"{name} did not finish"
+    assert spin(executor, result.done, 180), f'{name} did not finish'
     client.destroy()
     return result.result().result
 
@@ -84,12 +84,12 @@ def run_skill(node, executor, spin, action_type, name, goal):
 def settled_truth(executor, spin, truth, estimates):
     """Latest ground truth once a fresh cube estimate exists (skills need one)."""
     count = len(estimates)
-    assert spin(executor, lambda: len(estimates) > count + 2, 60), "no aspect observations"
-    assert spin(executor, lambda: truth, 30), "no ground truth from the sim bridge"
+    assert spin(executor, lambda: len(estimates) > count + 2, 60), 'no aspect observations'
+    assert spin(executor, lambda: truth, 30), 'no ground truth from the sim bridge'
     return truth[-1]
 
 
-@pytest.mark.parametrize("mass, expected_yaw_change", [
+@pytest.mark.parametrize('mass, expected_yaw_change', [
     (UNIFORM, 0),        # slides: no aspect change
     (HEAVY_PLUS_Y, -1),  # the heavy +y side drags: yaw -= 1 (MODEL.md)
 ])
@@ -98,7 +98,7 @@ def test_push_slides_or_pivots_as_the_mass_dictates(sim_graph, spin, mass,
     node, executor, truth, estimates = sim_graph(mass)
     before = settled_truth(executor, spin, truth, estimates)
     assert (before.up_face, before.yaw_step) == (4, 0)
-    result = run_skill(node, executor, spin, Push, "push", Push.Goal(face="front"))
+    result = run_skill(node, executor, spin, Push, 'push', Push.Goal(face='front'))
     assert result.success, result.reason
     spin(executor, lambda: False, 1.0)
     after = truth[-1]
@@ -111,7 +111,7 @@ def test_lift_turns_a_top_heavy_cube_over(sim_graph, spin):
     node, executor, truth, estimates = sim_graph(HEAVY_TOP)
     before = settled_truth(executor, spin, truth, estimates)
     assert before.up_face == 4
-    result = run_skill(node, executor, spin, Lift, "lift", Lift.Goal())
+    result = run_skill(node, executor, spin, Lift, 'lift', Lift.Goal())
     assert result.success, result.reason
     spin(executor, lambda: False, 1.0)
     assert truth[-1].up_face == 5  # 180 degrees about the hand axis: the mass ends down
@@ -120,13 +120,13 @@ def test_lift_turns_a_top_heavy_cube_over(sim_graph, spin):
 def test_flip_rolls_a_uniform_cube_and_orbit_turns_the_view(sim_graph, spin):
     node, executor, truth, estimates = sim_graph(UNIFORM)
     before = settled_truth(executor, spin, truth, estimates)
-    result = run_skill(node, executor, spin, Flip, "flip", Flip.Goal())
+    result = run_skill(node, executor, spin, Flip, 'flip', Flip.Goal())
     assert result.success, result.reason
     spin(executor, lambda: False, 1.0)
     assert truth[-1].up_face == 0  # the front face (+x) goes to the top
 
     before = settled_truth(executor, spin, truth, estimates)
-    result = run_skill(node, executor, spin, Orbit, "orbit", Orbit.Goal(angle_deg=90.0))
+    result = run_skill(node, executor, spin, Orbit, 'orbit', Orbit.Goal(angle_deg=90.0))
     assert result.success, result.reason
     spin(executor, lambda: False, 1.0)
     assert truth[-1].up_face == before.up_face

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
-ament_index = pytest.importorskip("ament_index_python.packages")
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
 try:  # The node tests need the built workspace (scripts/bootstrap.sh; source scripts/env.sh).
     from abp_msgs.action import Lift, Orbit, Push
     from abp_msgs.msg import AspectHypothesis, AspectObservation
     from abp_msgs.srv import CheckFeasibility
 except ImportError:
-    pytest.skip("abp_msgs is not built/sourced (scripts/bootstrap.sh; source scripts/env.sh)",
+    pytest.skip('abp_msgs is not built/sourced (scripts/bootstrap.sh; source scripts/env.sh)',
                 allow_module_level=True)
 
 from action_msgs.msg import GoalStatus  # noqa: E402
@@ -32,34 +32,34 @@ from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from abp_common.qos import RELIABLE  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
 
-FAKE_ROBOT = Path(__file__).with_name("fake_robot.py")
+FAKE_ROBOT = Path(__file__).with_name('fake_robot.py')
 # Fast motions so that the tests stay short (the defaults are for the real robot).
 FAST = {
-    "joint_velocity_scale": 1.0, "joint_acceleration": 8.0, "joint_jerk": 60.0,
-    "cartesian_velocity": 0.25, "cartesian_acceleration": 1.5, "cartesian_jerk": 15.0,
-    "base_linear_velocity": 0.4, "base_linear_acceleration": 1.0, "base_linear_jerk": 6.0,
-    "base_angular_velocity": 1.5, "base_angular_acceleration": 4.0,
-    "base_angular_jerk": 25.0,
+    'joint_velocity_scale': 1.0, 'joint_acceleration': 8.0, 'joint_jerk': 60.0,
+    'cartesian_velocity': 0.25, 'cartesian_acceleration': 1.5, 'cartesian_jerk': 15.0,
+    'base_linear_velocity': 0.4, 'base_linear_acceleration': 1.0, 'base_linear_jerk': 6.0,
+    'base_angular_velocity': 1.5, 'base_angular_acceleration': 4.0,
+    'base_angular_jerk': 25.0,
 }
 
 
 def executable(name):
-    return os.path.join(ament_index.get_package_prefix("abp_skills"), "lib", "abp_skills", name)
+    return os.path.join(ament_index.get_package_prefix('abp_skills'), 'lib', 'abp_skills', name)
 
 
 def start_server(ros_processes, name, **params):
     values = {**FAST, **params}
-    argv = [executable(name), "--ros-args"]
+    argv = [executable(name), '--ros-args']
     for key, value in values.items():
-        argv += ["-p", f"{key}:={value}"]
+        argv += ['-p', f'{key}:={value}']
     proc = ros_processes.start(argv)
-    ros_processes.wait_for_line(proc, "skills ready", 60)
+    ros_processes.wait_for_line(proc, 'skills ready', 60)
     return proc
 
 
 def start_robot(ros_processes):
     proc = ros_processes.start_python(FAKE_ROBOT)
-    ros_processes.wait_for_line(proc, "fake robot ready", 60)
+    ros_processes.wait_for_line(proc, 'fake robot ready', 60)
     return proc
 
 
@@ -68,7 +68,7 @@ class Harness:
     fake odometry) and recorders of the robot commands."""
 
     def __init__(self, context):
-        self.node = rclpy.create_node("skills_tester", context=context)
+        self.node = rclpy.create_node('skills_tester', context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
         self.cube_odom = None          # (x, y) of the cube in odom, or None: no estimate
@@ -76,13 +76,13 @@ class Harness:
         self.cmd_vel = []              # (time, v, w)
         self.trajectories = {c: [] for c in CONTROLLERS}   # (time, number of points)
         self.lock = threading.Lock()
-        self.obs_pub = self.node.create_publisher(AspectObservation, "/abp/aspect_observation",
+        self.obs_pub = self.node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                                   RELIABLE)
-        self.node.create_subscription(Odometry, "/odom", self._on_odom, RELIABLE)
-        self.node.create_subscription(Twist, "/cmd_vel", self._on_cmd, RELIABLE)
+        self.node.create_subscription(Odometry, '/odom', self._on_odom, RELIABLE)
+        self.node.create_subscription(Twist, '/cmd_vel', self._on_cmd, RELIABLE)
         for c in CONTROLLERS:
             self.node.create_subscription(
-                JointTrajectory, f"/{c}/joint_trajectory",
+                JointTrajectory, f'/{c}/joint_trajectory',
                 lambda msg, c=c: self.trajectories[c].append((time.monotonic(), len(msg.points))),
                 RELIABLE)
         self.node.create_timer(0.2, self._publish_estimate)
@@ -105,7 +105,7 @@ class Harness:
         hyp.object_pose.pose.position.y = -math.sin(yaw) * dx + math.cos(yaw) * dy
         hyp.object_pose.pose.position.z = 0.05
         msg = AspectObservation(hypotheses=[hyp])
-        msg.header.frame_id = "base_link"
+        msg.header.frame_id = 'base_link'
         msg.header.stamp = self.node.get_clock().now().to_msg()
         self.obs_pub.publish(msg)
 
@@ -118,12 +118,12 @@ class Harness:
         return predicate()
 
     def wait_future(self, future, timeout=30.0):
-        assert self.spin(future.done, timeout), "no answer in time"
+        assert self.spin(future.done, timeout), 'no answer in time'
         return future.result()
 
     def feasibility(self, actions=()):
-        client = self.node.create_client(CheckFeasibility, "/abp/skills/check_feasibility")
-        assert self.spin(client.service_is_ready, 20), "no feasibility service"
+        client = self.node.create_client(CheckFeasibility, '/abp/skills/check_feasibility')
+        assert self.spin(client.service_is_ready, 20), 'no feasibility service'
         res = self.wait_future(client.call_async(CheckFeasibility.Request(actions=list(actions))))
         self.node.destroy_client(client)
         return {a: (ok, r) for a, ok, r in zip(res.actions, res.feasible, res.reasons)}
@@ -140,8 +140,8 @@ class Harness:
         return answer
 
     def send(self, action_type, name, goal, feedback=None):
-        client = ActionClient(self.node, action_type, f"/abp/skills/{name}")
-        assert self.spin(client.server_is_ready, 20), f"no {name} server"
+        client = ActionClient(self.node, action_type, f'/abp/skills/{name}')
+        assert self.spin(client.server_is_ready, 20), f'no {name} server'
         handle = self.wait_future(client.send_goal_async(
             goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback
             is not None else None))
@@ -168,51 +168,51 @@ def tester(rclpy_context):
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_refusals_and_the_feasibility_service(ros_processes, tester):
     start_robot(ros_processes)
-    start_server(ros_processes, "skill_servers", max_estimate_age=1.5)
+    start_server(ros_processes, 'skill_servers', max_estimate_age=1.5)
     assert tester.spin(lambda: tester.odom is not None, 20)
 
     # No estimate at all: every action infeasible, every skill refused.
     answer = tester.feasibility()
-    assert list(answer) == ["ORBIT_P45", "ORBIT_M45", "ORBIT_P90", "ORBIT_M90", "ORBIT_180",
-                            "PUSH", "LIFT", "FLIP"]
-    assert all(not ok and "no cube pose estimate" in r for ok, r in answer.values())
-    _, handle = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=90.0))
+    assert list(answer) == ['ORBIT_P45', 'ORBIT_M45', 'ORBIT_P90', 'ORBIT_M90', 'ORBIT_180',
+                            'PUSH', 'LIFT', 'FLIP']
+    assert all(not ok and 'no cube pose estimate' in r for ok, r in answer.values())
+    _, handle = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=90.0))
     res = tester.result(handle)
     assert res.status == GoalStatus.STATUS_ABORTED
-    assert not res.result.success and "no cube pose estimate" in res.result.reason
+    assert not res.result.success and 'no cube pose estimate' in res.result.reason
 
     # Cube far away (1.3 m): the manual skills are out of reach; ORBIT may still go.
     tester.cube_odom = (1.3, 0.0)
-    tester.wait_until_feasibility("PUSH", lambda a: "out of reach" in a[1])
+    tester.wait_until_feasibility('PUSH', lambda a: 'out of reach' in a[1])
     answer = tester.feasibility()
-    for action in ("PUSH", "LIFT", "FLIP"):
-        assert not answer[action][0] and "out of reach" in answer[action][1]
-    assert answer["ORBIT_P90"] == (True, "")
-    _, handle = tester.send(Push, "push", Push.Goal(face="front"))
+    for action in ('PUSH', 'LIFT', 'FLIP'):
+        assert not answer[action][0] and 'out of reach' in answer[action][1]
+    assert answer['ORBIT_P90'] == (True, '')
+    _, handle = tester.send(Push, 'push', Push.Goal(face='front'))
     res = tester.result(handle)
     assert res.status == GoalStatus.STATUS_ABORTED
-    assert res.result.reason.startswith("refused:") and "out of reach" in res.result.reason
-    assert tester.trajectories["right_arm_controller"] == []   # nothing moved
+    assert res.result.reason.startswith('refused:') and 'out of reach' in res.result.reason
+    assert tester.trajectories['right_arm_controller'] == []   # nothing moved
 
     # Bad goals are refused with a reason.
-    _, handle = tester.send(Push, "push", Push.Goal(face="top"))
-    assert "only the front face" in tester.result(handle).result.reason
-    _, handle = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=30.0))
-    assert "not one of" in tester.result(handle).result.reason
+    _, handle = tester.send(Push, 'push', Push.Goal(face='top'))
+    assert 'only the front face' in tester.result(handle).result.reason
+    _, handle = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=30.0))
+    assert 'not one of' in tester.result(handle).result.reason
 
     # Cube in front: everything is feasible.
     tester.cube_odom = (0.4, 0.0)
-    tester.wait_until_feasibility("LIFT", lambda a: a[0])
+    tester.wait_until_feasibility('LIFT', lambda a: a[0])
     answer = tester.feasibility()
     assert all(ok for ok, _ in answer.values()), answer
-    assert tester.feasibility(["LIFT"]) == {"LIFT": (True, "")}
+    assert tester.feasibility(['LIFT']) == {'LIFT': (True, '')}
 
     # The estimate goes stale (perception stops): refused again.
     tester.cube_odom = None
     tester.spin(lambda: False, 2.0)
-    _, handle = tester.send(Lift, "lift", Lift.Goal())
+    _, handle = tester.send(Lift, 'lift', Lift.Goal())
     res = tester.result(handle)
-    assert not res.result.success and "s old" in res.result.reason
+    assert not res.result.success and 's old' in res.result.reason
 
 
 # Closed-loop timing over DDS: on an overloaded machine the state streams can lag
@@ -221,24 +221,24 @@ def test_refusals_and_the_feasibility_service(ros_processes, tester):
 def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, tester):
     start_robot(ros_processes)
     # Separate processes: the one-skill-at-a-time rule goes through /abp/skills/active.
-    start_server(ros_processes, "orbit_server")
-    start_server(ros_processes, "lift_server")
+    start_server(ros_processes, 'orbit_server')
+    start_server(ros_processes, 'lift_server')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
-    assert tester.wait_until_feasibility("ORBIT_180", lambda a: a[0])[0]
+    assert tester.wait_until_feasibility('ORBIT_180', lambda a: a[0])[0]
 
     feedback = []
-    _, orbit = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=180.0), feedback)
-    if not tester.spin(lambda: any(f.phase == "stroke" for f in feedback), 20):
+    _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=180.0), feedback)
+    if not tester.spin(lambda: any(f.phase == 'stroke' for f in feedback), 20):
         res = tester.result(orbit, 5)
-        pytest.fail(f"the orbit never reached its arc: {res.status} {res.result.reason}")
-    assert tester.spin(lambda: abs(tester.odom[3].linear.x) > 0.05, 5), "base not moving"
+        pytest.fail(f'the orbit never reached its arc: {res.status} {res.result.reason}')
+    assert tester.spin(lambda: abs(tester.odom[3].linear.x) > 0.05, 5), 'base not moving'
 
     # A second skill while ORBIT runs (in another process) is rejected with a reason.
-    _, lift = tester.send(Lift, "lift", Lift.Goal())
+    _, lift = tester.send(Lift, 'lift', Lift.Goal())
     res = tester.result(lift, 10)
     assert res.status == GoalStatus.STATUS_ABORTED
-    assert res.result.reason.startswith("rejected: busy") and "orbit" in res.result.reason
+    assert res.result.reason.startswith('rejected: busy') and 'orbit' in res.result.reason
     assert orbit.status == GoalStatus.STATUS_EXECUTING
 
     # Cancel mid-motion: zero /cmd_vel and a hold (empty trajectory) on every controller.
@@ -246,14 +246,14 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     tester.wait_future(orbit.cancel_goal_async(), 10)
     res = tester.result(orbit, 10)
     assert res.status == GoalStatus.STATUS_CANCELED
-    assert not res.result.success and res.result.reason == "canceled"
+    assert not res.result.success and res.result.reason == 'canceled'
     assert res.result.duration.sec + res.result.duration.nanosec * 1e-9 > 1.0
     tester.spin(lambda: False, 0.7)
     after = [c for c in tester.cmd_vel if c[0] >= cancel_time]
     assert after and after[-1][1:] == (0.0, 0.0)
     for controller in CONTROLLERS:
         holds = [n for t, n in tester.trajectories[controller] if t >= cancel_time]
-        assert 0 in holds, f"no hold sent to {controller}"
+        assert 0 in holds, f'no hold sent to {controller}'
     assert abs(tester.odom[3].linear.x) < 1e-9 and abs(tester.odom[3].angular.z) < 1e-9
     stopped = tester.odom[:2]
     tester.spin(lambda: False, 0.5)
@@ -261,8 +261,8 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
 
     # The claim was released: LIFT now runs (and is cancelled in its approach).
     feedback = []
-    _, lift = tester.send(Lift, "lift", Lift.Goal(), feedback)
-    assert tester.spin(lambda: any(f.phase == "approach" and f.progress > 0.05
+    _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
+    assert tester.spin(lambda: any(f.phase == 'approach' and f.progress > 0.05
                                    for f in feedback), 20)
     tester.wait_future(lift.cancel_goal_async(), 10)
     assert tester.result(lift, 10).status == GoalStatus.STATUS_CANCELED
@@ -273,16 +273,16 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     start_robot(ros_processes)
-    start_server(ros_processes, "skill_servers")
+    start_server(ros_processes, 'skill_servers')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
-    assert tester.wait_until_feasibility("ORBIT_M90", lambda a: a[0])[0]
+    assert tester.wait_until_feasibility('ORBIT_M90', lambda a: a[0])[0]
 
     feedback = []
-    _, orbit = tester.send(Orbit, "orbit", Orbit.Goal(angle_deg=-90.0), feedback)
+    _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=-90.0), feedback)
     res = tester.result(orbit, 60)
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.reason
-    assert res.result.success and res.result.reason == ""
+    assert res.result.success and res.result.reason == ''
     x, y, yaw, _ = tester.odom
     # ORBIT(-90): the cube's relative yaw changes by -90 deg, i.e. the robot went +90 deg
     # (counter-clockwise) around it, and faces it again at the same distance.
@@ -291,30 +291,30 @@ def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     assert math.dist((x, y), (0.4, 0.0)) == pytest.approx(0.4, abs=0.03)
     to_cube = math.atan2(0.0 - y, 0.4 - x)
     assert abs((to_cube - yaw + math.pi) % (2 * math.pi) - math.pi) < math.radians(3)
-    assert [f.phase for f in feedback][0] == "approach" and feedback[-1].phase == "stroke"
+    assert [f.phase for f in feedback][0] == 'approach' and feedback[-1].phase == 'stroke'
     progress = [f.progress for f in feedback]
     assert progress == sorted(progress) and progress[-1] == pytest.approx(1.0)
 
     feedback = []
-    _, lift = tester.send(Lift, "lift", Lift.Goal(), feedback)
+    _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
     res = tester.result(lift, 60)
     assert res.status == GoalStatus.STATUS_SUCCEEDED, res.result.reason
     phases = []
     for f in feedback:
         if not phases or phases[-1] != f.phase:
             phases.append(f.phase)
-    assert phases == ["approach", "contact", "stroke", "retreat"]
+    assert phases == ['approach', 'contact', 'stroke', 'retreat']
     assert res.result.duration.sec >= 2
 
 
-@pytest.mark.parametrize("override, expected", [
-    ("push_hand:=middle", "push_hand"),
-    ("timeout:=-3.0", "timeout"),
-    ("orbit_min_radius:=2.0", "orbit_min_radius"),
+@pytest.mark.parametrize('override, expected', [
+    ('push_hand:=middle', 'push_hand'),
+    ('timeout:=-3.0', 'timeout'),
+    ('orbit_min_radius:=2.0', 'orbit_min_radius'),
 ])
 def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([executable("push_server"), "--ros-args", "-p", override],
+    result = subprocess.run([executable('push_server'), '--ros-args', '-p', override],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
-    assert "configuration error" in result.stderr and expected in result.stderr
-    assert "Traceback" not in result.stderr
+    assert 'configuration error' in result.stderr and expected in result.stderr
+    assert 'Traceback' not in result.stderr

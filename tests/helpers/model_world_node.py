@@ -30,12 +30,12 @@ from abp_msgs.srv import CheckFeasibility
 
 # Orbit goal angle (deg) -> the ATG action it is.
 ORBIT_ACTIONS = {45.0 * steps: action for action, steps in ORBIT_STEPS.items()}
-SKILL_TYPES = {"orbit": Orbit, "push": Push, "lift": Lift, "flip": Flip}
+SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 
 
 class ModelWorld(Node):
-    def __init__(self, model_set, true_model, fail_action="", infeasible_action=""):
-        super().__init__("model_world")
+    def __init__(self, model_set, true_model, fail_action='', infeasible_action=''):
+        super().__init__('model_world')
         self.models = model_set
         self.rng = np.random.default_rng(1234)
         self.node = true_model * STATES_PER_MODEL + int(self.rng.integers(STATES_PER_MODEL))
@@ -57,7 +57,7 @@ class ModelWorld(Node):
         z = self.models.observation.sample(self.models.node_aspect[self.node], self.rng)
         msg = AspectObservation()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = "base_link"
+        msg.header.frame_id = 'base_link'
         msg.hypotheses = [AspectHypothesis(aspect_type=z[0], slots=list(z[1:]), support=1.0,
                                            score=1.0)]
         msg.hypotheses[0].object_pose.pose.position.x = 0.4
@@ -68,30 +68,30 @@ class ModelWorld(Node):
         actions = list(request.actions) or list(ACTIONS)
         response.actions = actions
         response.feasible = [a != self.infeasible_action for a in actions]
-        response.reasons = ["" if a != self.infeasible_action else "IK fails (test world)"
+        response.reasons = ['' if a != self.infeasible_action else 'IK fails (test world)'
                             for a in actions]
         return response
 
     def execute(self, skill, handle):
         goal = handle.request
-        action = ORBIT_ACTIONS.get(goal.angle_deg) if skill == "orbit" else skill.upper()
+        action = ORBIT_ACTIONS.get(goal.angle_deg) if skill == 'orbit' else skill.upper()
         result = SKILL_TYPES[skill].Result()
         time.sleep(0.1)  # the skill "moves"
         if handle.is_cancel_requested:
             handle.canceled()
-            result.reason = "cancelled"
+            result.reason = 'cancelled'
             return result
         if action == self.fail_action:
             handle.abort()
             result.success = False
-            result.reason = "grasp slipped (test world)"
+            result.reason = 'grasp slipped (test world)'
             self.executed.append((action, False))
-            print(f"EXECUTED {action} failed", flush=True)
+            print(f'EXECUTED {action} failed', flush=True)
             return result
         nodes, probs = self.models.successors(action_index(action), np.array([self.node]))
         self.node = int(self.rng.choice(nodes[0], p=probs[0]))
         self.executed.append((action, True))
-        print(f"EXECUTED {action} ok", flush=True)
+        print(f'EXECUTED {action} ok', flush=True)
         handle.succeed()
         result.success = True
         result.duration.nanosec = 100_000_000
@@ -100,15 +100,15 @@ class ModelWorld(Node):
 
 def main():
     kind, seed, true_model = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    fail_action = sys.argv[4] if len(sys.argv) > 4 else ""
-    infeasible = sys.argv[5] if len(sys.argv) > 5 else ""
-    models = population.robot_set(seed=seed) if kind == "robot" else \
+    fail_action = sys.argv[4] if len(sys.argv) > 4 else ''
+    infeasible = sys.argv[5] if len(sys.argv) > 5 else ''
+    models = population.robot_set(seed=seed) if kind == 'robot' else \
         population.random_visual_subset(30, seed=seed)
     rclpy.init()
     node = ModelWorld(models, true_model, fail_action, infeasible)
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
-    print(f"READY true={models.names[true_model]}", flush=True)
+    print(f'READY true={models.names[true_model]}', flush=True)
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -118,5 +118,5 @@ def main():
         rclpy.try_shutdown()
 
 
-if __name__ == "__main__":
+if __name__ == '__main__':
     main()

@@ -18,31 +18,31 @@ from rosidl_parser.definition import (
 )
 
 _INTEGER_LIMITS = {
-    "int8": 127, "uint8": 255, "int16": 32767, "uint16": 65535, "int32": 2**31 - 1,
-    "uint32": 2**32 - 1, "int64": 2**63 - 1, "uint64": 2**64 - 1, "char": 255, "octet": 255,
+    'int8': 127, 'uint8': 255, 'int16': 32767, 'uint16': 65535, 'int32': 2**31 - 1,
+    'uint32': 2**32 - 1, 'int64': 2**63 - 1, 'uint64': 2**64 - 1, 'char': 255, 'octet': 255,
 }
 
 
 def _message_class(namespaced_type):
-    module = importlib.import_module(".".join(namespaced_type.namespaces))
+    module = importlib.import_module('.'.join(namespaced_type.namespaces))
     return getattr(module, namespaced_type.name)
 
 
 def _value(slot_type, seed):
     if isinstance(slot_type, BasicType):
         name = slot_type.typename
-        if name == "boolean":
+        if name == 'boolean':
             return seed % 2 == 1
-        if name in ("float", "double"):
-            return float(seed) + 0.25 if name == "float" else math.pi * seed
-        if name == "octet":
+        if name in ('float', 'double'):
+            return float(seed) + 0.25 if name == 'float' else math.pi * seed
+        if name == 'octet':
             return bytes([seed % 256])
         return (seed * 7919) % (_INTEGER_LIMITS[name] + 1)
     if isinstance(slot_type, (AbstractString, AbstractWString)):
-        return f"value-{seed}"
+        return f'value-{seed}'
     if isinstance(slot_type, NamespacedType):
         return populate(_message_class(slot_type)(), seed)
-    raise TypeError(f"unsupported slot type {slot_type!r}")
+    raise TypeError(f'unsupported slot type {slot_type!r}')
 
 
 def populate(msg, seed=1):
@@ -57,7 +57,7 @@ def populate(msg, seed=1):
             else:
                 length = 2
             values = [_value(slot_type.value_type, field_seed + k) for k in range(length)]
-            setattr(msg, name.lstrip("_"), values)
+            setattr(msg, name.lstrip('_'), values)
         else:
-            setattr(msg, name.lstrip("_"), _value(slot_type, field_seed))
+            setattr(msg, name.lstrip('_'), _value(slot_type, field_seed))
     return msg

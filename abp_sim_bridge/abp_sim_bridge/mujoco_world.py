@@ -49,27 +49,11 @@ from .mujoco_scene import (
     build_model,
     mujoco,
 )
+from .world_interface import CommandInputs, ContactEvent
 
 ARM_REACH = 0.45  # m, shoulder to hand centre: turns grasp_opening into a roll angle
 EGL_HINT = ('MuJoCo offscreen rendering needs EGL (MUJOCO_GL=egl): install it with '
             '`apt-get install libegl1 libgl1-mesa-dri` or use the project Docker image')
-
-
-@dataclass
-class ContactEvent:
-    """A manual action recognised from the contacts (as rules_contact.ContactEvent)."""
-
-    action: str        # 'PUSH', 'LIFT', 'FLIP', or '' (a contact that is no action)
-    effect: str        # slid, pivoted, rotated, unchanged, slipped, ...
-    detail: str = ''
-
-    @property
-    def is_action(self):
-        return bool(self.action)
-
-    def __str__(self):
-        head = f'{self.action} {self.effect}' if self.action else self.effect
-        return f'{head}: {self.detail}' if self.detail else head
 
 
 @dataclass(frozen=True)
@@ -200,7 +184,7 @@ class _Episode:
     last_touch_ns: int = 0
 
 
-class MujocoWorld:
+class MujocoWorld(CommandInputs):
     """Robot (base + 13 joints) and ARcube on MuJoCo, advanced by `step()`.
 
     `cube`: anything with `position` (centre, world), `rotation` (body -> world),
@@ -281,8 +265,6 @@ class MujocoWorld:
         self.odometry_pose = np.asarray(robot_pose, dtype=float).copy()
         # Odometry = this SE(2) transform o true base pose (identity until an error).
         self._odom_from_world = np.zeros(3)
-        self.cmd = None
-        self.cmd_time_ns = None
         self._twist_cmd = np.zeros(2)   # rate-limited (v, w)
         self.twist = (0.0, 0.0)         # measured (v, w), what /odom reports
         self._moving = False
@@ -309,22 +291,6 @@ class MujocoWorld:
         return offsets
 
     # -- commands ---------------------------------------------------------------------
-    @property
-    def time(self):
-        return self.time_ns * 1e-9
-
-    def set_cmd_vel(self, v, w):
-        v, w = float(v), float(w)
-        if not (np.isfinite(v) and np.isfinite(w)):
-            raise ValueError('cmd_vel must be finite')
-        self.cmd = (v, w)
-        self.cmd_time_ns = self.time_ns
-
-    def set_trajectory(self, controller, joint_names, points, stamp_s=0.0):
-        """Start a trajectory on a controller (see trajectory.TrajectoryFollower)."""
-        follower, idx = self.controllers[controller]
-        return follower.set_trajectory(joint_names, points, stamp_s, self.time,
-                                       self.q[idx], self.qd[idx])
 
     # -- the tick -----------------------------------------------------------------------
     def step(self):

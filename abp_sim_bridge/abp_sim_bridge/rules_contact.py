@@ -59,6 +59,7 @@ from .rules_physics import (
     apply_flip,
     apply_lift,
 )
+from .world_interface import ContactEvent
 
 _Z = np.array([0.0, 0.0, 1.0])
 
@@ -83,21 +84,6 @@ class ContactParams:
                 raise ValueError(f'{name} must be > 0')
         if not 0 < self.flip_zone < 1:
             raise ValueError('flip_zone must be in (0, 1)')
-
-
-@dataclass
-class ContactEvent:
-    action: str        # 'PUSH', 'LIFT', 'FLIP', or '' (a contact that is no action)
-    effect: str        # rules_physics effect (slid, pivoted, rotated, unchanged, missed, ...)
-    detail: str = ''
-
-    @property
-    def is_action(self):
-        return bool(self.action)
-
-    def __str__(self):
-        head = f'{self.action} {self.effect}' if self.action else self.effect
-        return f'{head}: {self.detail}' if self.detail else head
 
 
 @dataclass

@@ -31,8 +31,9 @@ from abp_description.frames import base_to_world, integrate_twist, wrap_rad
 from abp_description.kinematics import HAND_FRAMES, RobotKinematics, look_at_world
 
 from .joint_trajectory_follower import TrajectoryFollower
-from .rules_contact import ContactEvent, ContactParams, ContactTracker
+from .rules_contact import ContactParams, ContactTracker
 from .rules_physics import Physics, World, discrete_state
+from .world_interface import CommandInputs, ContactEvent
 
 
 @dataclass
@@ -59,7 +60,7 @@ class SimSettings:
         return int(round(1e9 / self.rate))
 
 
-class RulesWorld:
+class RulesWorld(CommandInputs):
     """Robot (joints + base) and ARcube world, advanced by `step()`."""
 
     def __init__(self, world: World, settings=None, kinematics=None, start_time_ns=0):
@@ -96,8 +97,6 @@ class RulesWorld:
         self._wheel_idx = np.array([kin.joint_index(j) for j in WHEEL_JOINTS])
         self._hand_fids = {s: kin.model.getFrameId(HAND_FRAMES[s]) for s in SIDES}
         self.wheel_radius, self.wheel_track = self._wheel_geometry()
-        self.cmd = None            # (v, w) of the last /cmd_vel
-        self.cmd_time_ns = None
         self.twist = (0.0, 0.0)    # applied (odometry) twist
         self._moving = False
         self.contacts = ContactTracker(self.settings.contact)
@@ -130,22 +129,6 @@ class RulesWorld:
         return base_to_world(self.world.robot_pose) @ self.kin.camera_pose(self.q)
 
     # -- commands ---------------------------------------------------------------------
-    @property
-    def time(self):
-        return self.time_ns * 1e-9
-
-    def set_cmd_vel(self, v, w):
-        v, w = float(v), float(w)
-        if not (np.isfinite(v) and np.isfinite(w)):
-            raise ValueError('cmd_vel must be finite')
-        self.cmd = (v, w)
-        self.cmd_time_ns = self.time_ns
-
-    def set_trajectory(self, controller, joint_names, points, stamp_s=0.0):
-        """Start a trajectory on a controller (see joint_trajectory_follower)."""
-        follower, idx = self.controllers[controller]
-        return follower.set_trajectory(joint_names, points, stamp_s, self.time,
-                                       self.q[idx], self.qd[idx])
 
     # -- the tick -----------------------------------------------------------------------
     def step(self):

@@ -1,0 +1,79 @@
+"""outcome_survey: its symmetry classes and outcome mapping (no physics), and a tiny survey
+end to end (1 trial, 2 classes, real MuJoCo physics, < 30 s)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from abp_belief.cube import ACTIONS, MANUAL_ACTIONS, ORBIT_STEPS, rot_x, rot_y
+from abp_bench import outcome_survey as survey
+from abp_description.frames import rot_z_deg
+
+
+def test_classes_partition_the_cells_by_parity_and_mass_direction():
+    classes = survey.build_classes()
+    for action, cls_list in classes.items():
+        cells = [ms for c in cls_list for ms in c.members]
+        assert sorted(cells) == [(m, s) for m in range(7) for s in range(48)]
+        if action in ORBIT_STEPS:
+            assert [len(c.members) for c in cls_list] == [168, 168]
+        else:
+            assert len(cls_list) == 14 and all(len(c.members) == 24 for c in cls_list)
+        for c in cls_list:
+            assert len({s % 2 for _, s in c.members}) == 1
+
+
+def test_mapping_agrees_with_the_tables_own_symmetry():
+    # The hand-written tables are written in V (MODEL.md), so they respect the classes:
+    # mapping the representative's table distribution must give each member's.
+    table = survey.table_distributions()
+    for action, cls_list in survey.build_classes(MANUAL_ACTIONS).items():
+        a = ACTIONS.index(action)
+        for c in cls_list:
+            rm, rs = c.rep
+            for m, s in c.members:
+                mapped = np.zeros(48)
+                for nxt in np.nonzero(table[a, rm, rs])[0]:
+                    mapped[survey.map_outcome(rs, nxt, s)] += table[a, rm, rs, nxt]
+                np.testing.assert_allclose(mapped, table[a, m, s], atol=1e-12)
+
+
+@pytest.mark.parametrize('q, name', [
+    (np.eye(3), 'none'), (rot_z_deg(-45), 'Rz-45'), (rot_y(-90), 'Ry-90'),
+    (rot_x(180), 'Rx180'), (rot_z_deg(45) @ rot_y(90) @ rot_z_deg(-45), 'R(-x+y)+90')])
+def test_rotation_names(q, name):
+    assert survey.rotation_name(q) == name
+
+
+def test_the_simulation_side_never_imports_the_tables():
+    code = ('import sys\n'
+            'from abp_bench.outcome_survey import simulate, Randomisation\n'
+            "r = simulate(dict(action='ORBIT_P45', mass=3, state=36, seed=1,\n"
+            '                  rand=Randomisation().__dict__))\n'
+            "assert r['final_state'] == 37, r\n"
+            "assert 'abp_belief.modelset' not in sys.modules\n")
+    subprocess.run([sys.executable, '-c', code], check=True, timeout=120)
+
+
+@pytest.mark.timeout(120)   # ~15 s on an idle 2-core machine
+def test_tiny_survey_writes_json_markdown_and_heat_map(tmp_path):
+    # PUSH on a heavy-+y cube, even yaws: the classes 'mass +x_V' and 'mass +y_V'.
+    assert survey.main(['--trials', '1', '--actions', 'PUSH', '--masses', 'm+y',
+                        '--parity', 'even', '--max-classes', '2', '--jobs', '2',
+                        '--no-symmetry-check', '--no-progress', '--out', str(tmp_path)]) == 0
+    doc = json.loads((tmp_path / 'survey.json').read_text())
+    assert doc['settings']['trials'] == 1 and doc['versions']['mujoco']
+    assert [c['label'] for c in doc['classes']] == ['mass +x_V, even yaw',
+                                                     'mass +y_V, even yaw']
+    assert len(doc['cells']) == 8 and all(c['trials'] == 1 for c in doc['cells'])
+    assert len(doc['trials']) == 2 and all(t['start_ok'] and t['ran'] for t in doc['trials'])
+    # The table's nominal for a +y_V mass is a -45 deg pivot; the flag says whether physics
+    # agrees (one trial: either 0 or >= 88 points apart).
+    pivot = doc['classes'][1]
+    assert pivot['table']['Rz-45'] == pytest.approx(0.88)
+    assert pivot['flagged_cells'] in (0, 4)
+    assert '| PUSH | mass +y_V, even yaw | 4 |' in (tmp_path / 'survey.md').read_text()
+    assert (tmp_path / 'survey.png').stat().st_size > 10_000

@@ -1,0 +1,78 @@
+"""Every package's package.xml lists what its Python code imports (rosdep trusts it), and
+no package a robot runs pulls in the simulator or the benchmark-only libraries.
+
+Static (AST) scan of the sources: no ROS graph needed.
+"""
+
+import ast
+import pathlib
+import sys
+import xml.etree.ElementTree as ET
+
+import pytest
+
+REPO = pathlib.Path(__file__).resolve().parent.parent
+PACKAGES = sorted(p.parent for p in REPO.glob('abp_*/package.xml'))
+# Import name -> rosdep key, where they differ.
+ROSDEP_KEY = {
+    'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'cv2': 'python3-opencv',
+    'yaml': 'python3-yaml', 'matplotlib': 'python3-matplotlib', 'tqdm': 'python3-tqdm',
+    'pytest': 'python3-pytest', 'mujoco': 'python3-mujoco',
+}
+NOT_DEPENDENCIES = {'setuptools'} | set(sys.stdlib_module_names)
+# What a robot install must never need (issue 11): the simulator and benchmark tooling.
+BENCH_ONLY = {'abp_sim_bridge', 'python3-matplotlib', 'python3-tqdm'}
+RUNTIME_WITHOUT_BENCH = ('abp_belief', 'abp_bringup', 'abp_common', 'abp_description',
+                         'abp_perception', 'abp_planner', 'abp_skills')
+
+
+def imported_keys(files, own):
+    keys = {}
+    for path in files:
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            else:
+                continue
+            for name in names:
+                top = name.split('.')[0]
+                if top in NOT_DEPENDENCIES or top == own or top in {'tests', 'conftest'}:
+                    continue
+                keys.setdefault(ROSDEP_KEY.get(top, top), path.relative_to(REPO))
+    return keys
+
+
+def declared(package, tags):
+    root = ET.parse(package / 'package.xml').getroot()
+    return {e.text.strip() for tag in tags for e in root.iter(tag)}
+
+
+def sources(package):
+    code = [p for p in (package / package.name).rglob('*.py')]
+    code += [p for p in package.glob('launch/*.py')]
+    tests = list((package / 'test').rglob('*.py')) if (package / 'test').is_dir() else []
+    local = {p.stem for p in tests}  # test helpers imported by name
+    return code, tests, local
+
+
+@pytest.mark.parametrize('package', PACKAGES, ids=lambda p: p.name)
+def test_package_xml_lists_every_import(package):
+    code, tests, local = sources(package)
+    runtime = declared(package, ('depend', 'exec_depend'))
+    missing = {k: str(f) for k, f in imported_keys(code, package.name).items()
+               if k not in runtime}
+    assert not missing, f'{package.name}/package.xml lacks exec_depend for {missing}'
+    testing = runtime | declared(package, ('test_depend',))
+    missing = {k: str(f) for k, f in imported_keys(tests, package.name).items()
+               if k not in testing and k not in local}
+    assert not missing, f'{package.name}/package.xml lacks test_depend for {missing}'
+
+
+@pytest.mark.parametrize('name', RUNTIME_WITHOUT_BENCH)
+def test_runtime_packages_never_need_the_simulator_or_benchmark_tools(name):
+    package = REPO / name
+    code, _, _ = sources(package)
+    imports = set(imported_keys([p for p in code if p.parent.name != 'launch'], name))
+    assert not imports & BENCH_ONLY, f'{name} imports {imports & BENCH_ONLY}'

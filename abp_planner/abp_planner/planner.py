@@ -74,7 +74,7 @@ class SearchTimeout(Exception):
 def _row_entropies_bits(u: np.ndarray) -> np.ndarray:
     """Entropy (bits) of every row of a non-negative matrix after normalising it."""
     q = u / u.sum(axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide='ignore', invalid='ignore'):
         terms = np.where(q > 0, q * np.log2(q), 0.0)
     return -terms.sum(axis=1)
 
@@ -94,14 +94,14 @@ class Decision:
 
     def as_dict(self) -> dict:
         return {
-            "action": self.action,
-            "information_gain": None
+            'action': self.action,
+            'information_gain': None
             if self.information_gain is None
             else dict(zip(ACTIONS, map(float, self.information_gain))),
-            "entropy": self.entropy,
-            "planning_time_s": self.planning_time_s,
-            "infeasible": list(self.infeasible),
-            "search_depth": self.search_depth,
+            'entropy': self.entropy,
+            'planning_time_s': self.planning_time_s,
+            'infeasible': list(self.infeasible),
+            'search_depth': self.search_depth,
         }
 
 
@@ -113,7 +113,7 @@ def _first_feasible(order, feasible):
         if feasible is None or feasible(name):
             return int(index), refused
         refused.append(name)
-    raise RuntimeError("no feasible action: the motion planner refused " + ", ".join(refused))
+    raise RuntimeError('no feasible action: the motion planner refused ' + ', '.join(refused))
 
 
 def _rank(score: np.ndarray, tolerance: float, tie_key: np.ndarray) -> list[int]:
@@ -133,7 +133,7 @@ def _rank(score: np.ndarray, tolerance: float, tie_key: np.ndarray) -> list[int]
 class RandomPlanner:
     """Uniformly random feasible action (the paper's baseline); seeded."""
 
-    name = "random"
+    name = 'random'
 
     def __init__(self, model_set=None, seed: int = 0, **_ignored):
         self.rng = np.random.default_rng(seed)
@@ -147,7 +147,7 @@ class RandomPlanner:
             action_index=index,
             information_gain=None,
             score=None,
-            entropy=float("nan"),
+            entropy=float('nan'),
             planning_time_s=time.perf_counter() - start,
             infeasible=refused,
         )
@@ -196,15 +196,15 @@ class ActiveBeliefPlanner:
         branch_min_prob: float = 0.05,
         tie_tolerance: float = TIE_TOLERANCE_BITS,
         intermediate_weight: float = 0.1,
-        measure: str = "entropy",
+        measure: str = 'entropy',
         name: str | None = None,
         planning_budget_s: float | None = None,
         clock=None,
     ):
         if not 0.0 <= alpha <= 1.0:
-            raise ValueError(f"alpha must be in [0, 1], got {alpha}")
+            raise ValueError(f'alpha must be in [0, 1], got {alpha}')
         if plies < 1:
-            raise ValueError(f"plies must be >= 1, got {plies}")
+            raise ValueError(f'plies must be >= 1, got {plies}')
         self.model_set = model_set
         self.alpha = float(alpha)
         self.plies = int(plies)
@@ -212,25 +212,25 @@ class ActiveBeliefPlanner:
         self.durations = dict(NOMINAL_DURATION_S if durations is None else durations)
         missing = [a for a in ACTIONS if a not in self.durations]
         if missing:
-            raise ValueError(f"durations lack {missing}")
+            raise ValueError(f'durations lack {missing}')
         self.duration = np.array([float(self.durations[a]) for a in ACTIONS])
         if np.any(self.duration <= 0):
-            raise ValueError("action durations must be positive")
+            raise ValueError('action durations must be positive')
         self.support_floor = float(support_floor)
         self.lookahead_tail = float(lookahead_tail)
         self.branch_min_prob = float(branch_min_prob)
         self.tie_tolerance = float(tie_tolerance)
         self.intermediate_weight = float(intermediate_weight)
         self._open_loop = False
-        if measure not in ("entropy", "error"):
+        if measure not in ('entropy', 'error'):
             raise ValueError(f"measure must be 'entropy' or 'error', got {measure!r}")
         self.measure = measure
         if planning_budget_s is not None and not planning_budget_s > 0.0:
-            raise ValueError(f"planning_budget_s must be > 0 (or None), got {planning_budget_s}")
+            raise ValueError(f'planning_budget_s must be > 0 (or None), got {planning_budget_s}')
         self.planning_budget_s = None if planning_budget_s is None else float(planning_budget_s)
         self.clock = time.perf_counter if clock is None else clock
         self._deadline = None  # set only while a budgeted search runs
-        self.name = name or ("cost" if cost_aware else ("abp" if plies == 1 else f"abp{plies}"))
+        self.name = name or ('cost' if cost_aware else ('abp' if plies == 1 else f'abp{plies}'))
 
         ms = model_set
         self.num_nodes = int(ms.num_nodes)
@@ -315,7 +315,7 @@ class ActiveBeliefPlanner:
         may overrun it by about one of those (a few ms at |M| = 1470); the 1-ply
         floor is not interrupted.
         """
-        belief = np.asarray(getattr(belief, "belief", belief), dtype=np.float64)
+        belief = np.asarray(getattr(belief, 'belief', belief), dtype=np.float64)
         start = time.perf_counter()
         budgeted = self.planning_budget_s is not None and self.plies > 1
         deadline = self.clock() + self.planning_budget_s if budgeted else None
@@ -377,12 +377,12 @@ class ActiveBeliefPlanner:
 
     def _entropy_of(self, nodes, mass) -> float:
         marginal = np.bincount(nodes // STATES_PER_MODEL, mass)
-        if self.measure == "error":
+        if self.measure == 'error':
             return 1.0 - marginal.max() / marginal.sum()
         return entropy_bits(marginal)
 
     def _row_measure(self, u: np.ndarray) -> np.ndarray:
-        if self.measure == "error":
+        if self.measure == 'error':
             return 1.0 - u.max(axis=1) / u.sum(axis=1)
         return _row_entropies_bits(u)
 
@@ -394,14 +394,14 @@ class ActiveBeliefPlanner:
         if self.lookahead_tail <= 0.0:
             return post > 0
         idx = np.flatnonzero(live)
-        order = idx[np.argsort(post[idx], kind="stable")]
+        order = idx[np.argsort(post[idx], kind='stable')]
         tail = np.cumsum(post[order])
-        cut = np.searchsorted(tail, self.lookahead_tail * post.sum(), side="right")
+        cut = np.searchsorted(tail, self.lookahead_tail * post.sum(), side='right')
         live[order[:cut]] = False
         return live
 
     def _transpose(self, a):
-        cached = getattr(self.model_set, "transition_transpose", None)
+        cached = getattr(self.model_set, 'transition_transpose', None)
         if cached is not None:
             return cached(a)
         if a not in self._own_transposes:
@@ -537,7 +537,7 @@ class ActiveBeliefPlanner:
         return np.concatenate([[one_ply], value]) if open_loop else value
 
 
-PLANNER_NAMES = ("random", "abp", "abp2", "abp3", "cost")
+PLANNER_NAMES = ('random', 'abp', 'abp2', 'abp3', 'cost')
 
 
 def make_planner(name: str, model_set, **options):
@@ -549,25 +549,25 @@ def make_planner(name: str, model_set, **options):
     benchmark. ``planning_budget_s`` bounds abp2/abp3/cost (anytime search); 1-ply
     ``abp`` ignores it (it is the floor every budgeted search starts from).
     """
-    if name == "random":
-        return RandomPlanner(model_set, seed=options.get("seed", 0))
+    if name == 'random':
+        return RandomPlanner(model_set, seed=options.get('seed', 0))
     known = {
-        "alpha",
-        "durations",
-        "support_floor",
-        "lookahead_tail",
-        "branch_min_prob",
-        "tie_tolerance",
-        "intermediate_weight",
-        "planning_budget_s",
-        "clock",
+        'alpha',
+        'durations',
+        'support_floor',
+        'lookahead_tail',
+        'branch_min_prob',
+        'tie_tolerance',
+        'intermediate_weight',
+        'planning_budget_s',
+        'clock',
     }
     kwargs = {k: v for k, v in options.items() if k in known and v is not None}
-    if name == "abp":
-        kwargs.pop("planning_budget_s", None)
+    if name == 'abp':
+        kwargs.pop('planning_budget_s', None)
         return ActiveBeliefPlanner(model_set, plies=1, name=name, **kwargs)
-    if name in ("abp2", "abp3"):
+    if name in ('abp2', 'abp3'):
         return ActiveBeliefPlanner(model_set, plies=int(name[-1]), name=name, **kwargs)
-    if name == "cost":
+    if name == 'cost':
         return ActiveBeliefPlanner(model_set, plies=2, cost_aware=True, name=name, **kwargs)
     raise ValueError(f"unknown planner {name!r}; choose from {', '.join(PLANNER_NAMES)}")

@@ -51,7 +51,7 @@ class TrialResult:
     final_entropy: float  # bits, object marginal at the end
     true_posterior: list[float] = field(default_factory=list)  # after obs 0, then per action
     latency_ms: list[float] = field(default_factory=list)  # planning time per decision
-    stop_reason: str = ""
+    stop_reason: str = ''
     # Per step (after obs 0, then per action): top object posterior and whether the
     # top object is the true one, so other stopping rules can be replayed offline.
     top_posterior: list[float] = field(default_factory=list)
@@ -65,7 +65,7 @@ class TrialResult:
 
     def as_dict(self) -> dict:
         d = asdict(self)
-        d["num_actions"] = self.num_actions
+        d['num_actions'] = self.num_actions
         return d
 
 
@@ -132,11 +132,11 @@ def run_trial(
     ``max_actions`` caps the trial."""
     durations = NOMINAL_DURATION_S if durations is None else durations
     if stopping is None:
-        stopping = StoppingRule(kind="posterior" if early_stop else "fixed",
+        stopping = StoppingRule(kind='posterior' if early_stop else 'fixed',
                                 stop_posterior=stop_posterior, max_actions=max_actions,
                                 observation_params=model_set.observation_params,
                                 n_tags=model_set.n_tags)
-    fixed = stopping.kind == "fixed"
+    fixed = stopping.kind == 'fixed'
     bf = belief_filter if belief_filter is not None else BeliefFilter(model_set)
     bf.reset()
     true_model = int(truth_rng.integers(model_set.num_models))
@@ -167,7 +167,7 @@ def run_trial(
     while not stop:
         decision = planner.choose(bf.belief, feasible)
         latency.append(decision.planning_time_s * 1e3)
-        depth.append(int(getattr(decision, "search_depth", 1) or 1))
+        depth.append(int(getattr(decision, 'search_depth', 1) or 1))
         a = decision.action_index
         state = sample_outcome(model_set, true_model, state, a, noise_rng)
         bf.predict(ACTIONS[a])

@@ -74,7 +74,7 @@ import numpy as np
 from abp_belief.cube import STATES_PER_MODEL
 from abp_belief.observation import ObservationParams
 
-STOP_RULES = ("error", "posterior", "fixed")
+STOP_RULES = ('error', 'posterior', 'fixed')
 DEFAULT_TARGET_ERROR = 0.003  # the issue's 99.7 % accuracy goal
 DEFAULT_STOP_POSTERIOR = 0.95
 DEFAULT_MAX_ACTIONS = 30
@@ -83,7 +83,7 @@ DEFAULT_MAX_ACTIONS = 30
 MAX_TWIN_CLASS = 16
 
 
-ACTION_LIMIT = "action limit"  # reason prefix of a stop without an answer
+ACTION_LIMIT = 'action limit'  # reason prefix of a stop without an answer
 
 
 class StopDecision(NamedTuple):
@@ -137,7 +137,7 @@ def bisimulation_classes(model_set, decimals: int = 9, max_rounds: int = 64) -> 
         for succ, prob in outcomes:
             target = np.where(prob > 0, classes[succ], -1)
             # Canonical multiset of (class, prob): merge equal classes, sort by class.
-            order = np.argsort(target, axis=1, kind="stable")
+            order = np.argsort(target, axis=1, kind='stable')
             target = np.take_along_axis(target, order, axis=1)
             merged = np.take_along_axis(prob, order, axis=1).copy()
             for j in range(1, target.shape[1]):
@@ -145,12 +145,12 @@ def bisimulation_classes(model_set, decimals: int = 9, max_rounds: int = 64) -> 
                 merged[same, j] += merged[same, j - 1]
                 merged[same, j - 1] = 0.0
             target = np.where(merged > 0, target, -1)
-            order = np.argsort(target, axis=1, kind="stable")
+            order = np.argsort(target, axis=1, kind='stable')
             columns.append(np.take_along_axis(target, order, axis=1))
             columns.append(np.round(np.take_along_axis(merged, order, axis=1) * 10**decimals)
                            .astype(np.int64))
         signature = np.ascontiguousarray(np.concatenate(columns, axis=1))
-        row_view = signature.view([("", signature.dtype)] * signature.shape[1]).reshape(-1)
+        row_view = signature.view([('', signature.dtype)] * signature.shape[1]).reshape(-1)
         refined = np.unique(row_view, return_inverse=True)[1].reshape(-1)
         new_count = int(refined.max()) + 1
         classes = refined
@@ -170,7 +170,7 @@ class StoppingRule:
 
     def __init__(
         self,
-        kind: str = "error",
+        kind: str = 'error',
         target_error: float = DEFAULT_TARGET_ERROR,
         stop_posterior: float = DEFAULT_STOP_POSTERIOR,
         max_actions: int = DEFAULT_MAX_ACTIONS,
@@ -182,11 +182,11 @@ class StoppingRule:
         if kind not in STOP_RULES:
             raise ValueError(f"stopping rule must be one of {', '.join(STOP_RULES)}, got {kind!r}")
         if not 0.0 < target_error < 1.0:
-            raise ValueError(f"target_error must be in (0, 1), got {target_error}")
+            raise ValueError(f'target_error must be in (0, 1), got {target_error}')
         if not 0.0 < stop_posterior < 1.0:
-            raise ValueError(f"stop_posterior must be in (0, 1), got {stop_posterior}")
+            raise ValueError(f'stop_posterior must be in (0, 1), got {stop_posterior}')
         if max_actions < 0:
-            raise ValueError(f"max_actions must be >= 0, got {max_actions}")
+            raise ValueError(f'max_actions must be >= 0, got {max_actions}')
         self.kind = kind
         self.target_error = float(target_error)
         self.stop_posterior = float(stop_posterior)
@@ -200,7 +200,7 @@ class StoppingRule:
         self.node_class = None if node_class is None else np.asarray(node_class, dtype=np.int64)
 
     @classmethod
-    def for_model_set(cls, model_set, kind: str = "error", twins: bool = True, **options):
+    def for_model_set(cls, model_set, kind: str = 'error', twins: bool = True, **options):
         """A rule with the model set's observation parameters (and twin classes)."""
         return cls(kind=kind, observation_params=model_set.observation_params,
                    n_tags=model_set.n_tags,
@@ -225,15 +225,15 @@ class StoppingRule:
         marginal = marginal / marginal.sum()
         top = int(np.argmax(marginal))
         p_top = float(marginal[top])
-        if self.kind == "posterior" and p_top > self.stop_posterior:
-            return StopDecision(True, f"model {top}: posterior {p_top:.4f} > "
-                                f"{self.stop_posterior}")
-        if self.kind == "error":
+        if self.kind == 'posterior' and p_top > self.stop_posterior:
+            return StopDecision(True, f'model {top}: posterior {p_top:.4f} > '
+                                f'{self.stop_posterior}')
+        if self.kind == 'error':
             error = float(fault_discounted_error(p_top, self.fault_ratio))
             if error <= self.target_error:
-                discount = " after one-fault discount" if self.fault_margin else ""
-                return StopDecision(True, f"model {top}: P(wrong) {error:.2e} <= "
-                                    f"{self.target_error:g}{discount} (posterior {p_top:.6f})")
+                discount = ' after one-fault discount' if self.fault_margin else ''
+                return StopDecision(True, f'model {top}: P(wrong) {error:.2e} <= '
+                                    f'{self.target_error:g}{discount} (posterior {p_top:.6f})')
             twins = self.twin_class(belief, top) if belief is not None else np.array([top])
             if twins.size > 1:
                 p_class = float(marginal[twins].sum())
@@ -243,9 +243,9 @@ class StoppingRule:
                                         f"{', '.join(map(str, twins))}: P(outside) {error:.2e} "
                                         f"<= {self.target_error:g}; reporting model {top}")
         if actions_taken >= self.max_actions:
-            return StopDecision(True, f"{ACTION_LIMIT} {self.max_actions} reached "
-                                f"(model {top}, posterior {p_top:.4f})")
-        return StopDecision(False, f"model {top}: posterior {p_top:.4f}, continuing")
+            return StopDecision(True, f'{ACTION_LIMIT} {self.max_actions} reached '
+                                f'(model {top}, posterior {p_top:.4f})')
+        return StopDecision(False, f'model {top}: posterior {p_top:.4f}, continuing')
 
     def twin_class(self, belief, top: int | None = None) -> np.ndarray:
         """Models (sorted) that no action sequence can tell apart from ``top`` under

@@ -23,7 +23,7 @@ from abp_planner.stopping import (
 )
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope='module')
 def robot():
     return population.robot_set(seed=0)
 
@@ -51,33 +51,33 @@ def test_fault_ratio_from_observation_model():
 
 
 def test_error_rule_thresholds():
-    rule = StoppingRule(kind="error", target_error=0.003, max_actions=30)
+    rule = StoppingRule(kind='error', target_error=0.003, max_actions=30)
     stop, reason = rule.check(_belief(10, {2: 0.996, 3: 0.004}), 3)
-    assert not stop and reason.startswith("model 2")
+    assert not stop and reason.startswith('model 2')
     stop, reason = rule.check(_belief(10, {2: 0.998, 3: 0.002}), 3)
-    assert stop and "model 2" in reason
+    assert stop and 'model 2' in reason
     assert not rule.check(_belief(10, {2: 0.96, 3: 0.04}), 3).stop   # the old rule stops here
     assert rule.check(_belief(10, {2: 0.998, 3: 0.002})).identified
     marginal = np.zeros(10)
     marginal[[2, 3]] = 0.998, 0.002
     assert rule.check_marginal(marginal, 3) == rule.check(_belief(10, {2: 0.998, 3: 0.002}), 3)
     decision = rule.check(_belief(10, {2: 0.6, 3: 0.4}), 30)
-    assert decision.stop and decision.reason.startswith("action limit")
+    assert decision.stop and decision.reason.startswith('action limit')
     assert not decision.identified
-    margin = StoppingRule(kind="error", target_error=0.003, fault_margin=True)
+    margin = StoppingRule(kind='error', target_error=0.003, fault_margin=True)
     assert not margin.check(_belief(10, {2: 0.998, 3: 0.002})).stop
     assert margin.check(_belief(10, {2: 1 - 1e-6, 3: 1e-6})).stop
 
 
 def test_posterior_and_fixed_rules():
-    old = StoppingRule(kind="posterior", stop_posterior=0.95)
+    old = StoppingRule(kind='posterior', stop_posterior=0.95)
     assert old.check(_belief(4, {0: 0.96, 1: 0.04})).stop
     assert not old.check(_belief(4, {0: 0.94, 1: 0.06})).stop
-    fixed = StoppingRule(kind="fixed", max_actions=30)
+    fixed = StoppingRule(kind='fixed', max_actions=30)
     assert not fixed.check(_belief(4, {0: 1.0}), 29).stop
     assert fixed.check(_belief(4, {0: 1.0}), 30).stop
     with pytest.raises(ValueError):
-        StoppingRule(kind="sometimes")
+        StoppingRule(kind='sometimes')
     with pytest.raises(ValueError):
         StoppingRule(target_error=0.0)
 
@@ -113,7 +113,7 @@ def test_twin_class_stops_with_coin_flip_answer():
     belief[down + 3] = 0.5
     belief[STATES_PER_MODEL + twin_states[0]] = 0.5
     stop, reason = rule.check(belief, 4)
-    assert stop and reason.startswith("indistinguishable")
+    assert stop and reason.startswith('indistinguishable')
     assert list(rule.twin_class(belief)) == [0, 1]
     # Half of the top model's mass on its heavy face up: that part can still be
     # told apart (LIFT turns it), so the models are no longer one answer.
@@ -130,35 +130,35 @@ def test_twin_class_stops_with_coin_flip_answer():
 def test_simulator_uses_rule_and_reports_reason(robot):
     bf = BeliefFilter(robot)
     rule = StoppingRule.for_model_set(robot, target_error=0.003)
-    result = run_trial(robot, make_planner("abp", robot), *trial_rngs(0, 2), belief_filter=bf,
+    result = run_trial(robot, make_planner('abp', robot), *trial_rngs(0, 2), belief_filter=bf,
                        stopping=rule)
     assert result.stop_reason and result.identified
     assert len(result.top_posterior) == result.actions_run + 1
-    assert 1.0 - result.top_posterior[-1] <= 0.003 or "indistinguishable" in result.stop_reason
+    assert 1.0 - result.top_posterior[-1] <= 0.003 or 'indistinguishable' in result.stop_reason
 
 
 def test_no_early_stop_counts_to_true_crossing(robot, monkeypatch):
     """Fixed protocol: actions count to the *true* object's crossing of 0.95, not
     to the first crossing of any object."""
     bf = BeliefFilter(robot)
-    planner = make_planner("abp", robot)
-    fixed = StoppingRule(kind="fixed", max_actions=6)
+    planner = make_planner('abp', robot)
+    fixed = StoppingRule(kind='fixed', max_actions=6)
     import abp_planner.simulator as simulator
 
     original = simulator.BeliefFilter.object_marginal
-    calls = {"n": 0}
+    calls = {'n': 0}
 
     def fake_marginal(self):
         # Observation 1: a wrong model crosses 0.95; observation 3: the true one.
-        calls["n"] += 1
+        calls['n'] += 1
         m = original(self).copy()
         truth = fake_marginal.truth
         wrong = (truth + 1) % len(m)
         m[:] = 0.0
-        if calls["n"] == 2:
+        if calls['n'] == 2:
             m[wrong] = 0.97
             m[truth] = 0.03
-        elif calls["n"] >= 4:
+        elif calls['n'] >= 4:
             m[truth] = 0.99
             m[wrong] = 0.01
         else:
@@ -168,7 +168,7 @@ def test_no_early_stop_counts_to_true_crossing(robot, monkeypatch):
     truth_rng, noise_rng = trial_rngs(0, 0)
     fake_marginal.truth = int(np.random.default_rng(
         np.random.SeedSequence([0, 0, 0])).integers(robot.num_models))
-    monkeypatch.setattr(simulator.BeliefFilter, "object_marginal", fake_marginal)
+    monkeypatch.setattr(simulator.BeliefFilter, 'object_marginal', fake_marginal)
     result = run_trial(robot, planner, truth_rng, noise_rng, belief_filter=bf, stopping=fixed)
     assert result.actions_run == 6
     assert result.num_actions == 3 and result.identified
@@ -224,20 +224,20 @@ def _observed_belief(ms, model=3, state=10):
     return bf.belief
 
 
-@pytest.mark.parametrize("name", ["abp2", "abp3", "cost"])
+@pytest.mark.parametrize('name', ['abp2', 'abp3', 'cost'])
 def test_budget_spent_returns_one_ply_choice(robot, name):
     belief = _observed_belief(robot)
     # Every clock read costs a whole second: only the 1-ply floor can complete.
     slow = make_planner(name, robot, planning_budget_s=0.5, clock=_FakeClock(1.0))
     decision = slow.choose(belief)
     assert decision.search_depth == 1 and decision.action in ACTIONS
-    one_ply = ActiveBeliefPlanner(robot, plies=1, cost_aware=(name == "cost"))
+    one_ply = ActiveBeliefPlanner(robot, plies=1, cost_aware=(name == 'cost'))
     expected = one_ply.choose(belief)
     assert decision.action == expected.action
     np.testing.assert_allclose(decision.information_gain, expected.information_gain)
 
 
-@pytest.mark.parametrize("name", ["abp2", "abp3", "cost"])
+@pytest.mark.parametrize('name', ['abp2', 'abp3', 'cost'])
 def test_ample_budget_equals_unbounded_search(robot, name):
     belief = _observed_belief(robot, model=20, state=33)
     frozen = make_planner(name, robot, planning_budget_s=1.0, clock=lambda: 0.0)
@@ -253,23 +253,23 @@ def test_budget_interrupts_deeper_search(robot):
     thrown away and the last completed depth decides."""
     belief = _observed_belief(robot, model=20, state=33)
     clock = _FakeClock(1e-6)
-    planner = make_planner("abp3", robot, planning_budget_s=1.0, clock=clock)
+    planner = make_planner('abp3', robot, planning_budget_s=1.0, clock=clock)
     planner.choose(belief)
     reads_full = clock.reads
     for cut in (reads_full // 2, reads_full - 3):
         # Budget runs out after `cut` reads.
-        limited = make_planner("abp3", robot, planning_budget_s=cut * 1e-6,
+        limited = make_planner('abp3', robot, planning_budget_s=cut * 1e-6,
                                clock=_FakeClock(1e-6))
         decision = limited.choose(belief)
         assert 1 <= decision.search_depth < 3 and decision.action in ACTIONS
-        reference = make_planner(f"abp{decision.search_depth}" if decision.search_depth > 1
-                                 else "abp", robot).choose(belief)
+        reference = make_planner(f'abp{decision.search_depth}' if decision.search_depth > 1
+                                 else 'abp', robot).choose(belief)
         assert decision.action == reference.action
     with pytest.raises(ValueError):
-        make_planner("abp2", robot, planning_budget_s=0.0)
+        make_planner('abp2', robot, planning_budget_s=0.0)
 
 
 def test_one_ply_ignores_budget(robot):
-    planner = make_planner("abp", robot, planning_budget_s=1e-9, clock=_FakeClock(1.0))
+    planner = make_planner('abp', robot, planning_budget_s=1e-9, clock=_FakeClock(1.0))
     assert planner.planning_budget_s is None
     assert planner.choose(_observed_belief(robot)).search_depth == 1

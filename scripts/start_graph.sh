@@ -11,9 +11,11 @@
 #
 # Options:
 #   --robot              run on the robot: no sim bridge, no sim time
+#   --world W            sim world: mujoco (physics, MuJoCo camera) | rules (contact rules,
+#                        flat renderer; fast)                            (default rules)
 #   --object N           hidden cube in sim: index into the model set (default: seeded random)
 #   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
-#   --planner MODE       random | abp | abp2 | abp3 | cost                   (default abp)
+#   --planner MODE       random | abp | abp2 | abp3 | cost                   (default cost)
 #   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
 #   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
 #   --namespace NS       run every node under the namespace /NS (topics, services, actions)
@@ -23,16 +25,19 @@
 #   --max-actions N      action budget (default 30)
 #   --timeout S          wall-clock limit of the recognition (default 1800)
 #   --log-dir DIR        where node logs go (default log/graph-<time>)
+#   --no-build           skip scripts/bootstrap.sh (use install/ as it is)
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-robot=0; object=-1; models=robot; planner=abp; seed=0; params=""; record=""; result_json=""
-speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""
-usage() { sed -n '2,25p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
+speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=rules; build=1
+usage() { sed -n '2,28p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --robot) robot=1; shift ;;
+    --world) world="${2:?--world needs a value}"; shift 2 ;;
+    --no-build) build=0; shift ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
@@ -49,6 +54,7 @@ while [ $# -gt 0 ]; do
     *) die "unknown option $1 (see --help)" ;;
   esac
 done
+[[ "$world" =~ ^(mujoco|rules)$ ]] || die "--world must be mujoco or rules"
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
 [[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
@@ -68,7 +74,7 @@ case "$models" in
      model_yaml+=(model_file "'${file//\'/\'\'}'") ;;
 esac
 
-"$REPO/scripts/bootstrap.sh"
+[ "$build" = 1 ] && "$REPO/scripts/bootstrap.sh"
 # shellcheck disable=SC1091
 set +u; source "$REPO/scripts/env.sh"; set -u
 
@@ -134,10 +140,10 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo sim ) graph${namespace:+ under /$namespace}, models $models, planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo "sim ($world world)" ) graph${namespace:+ under /$namespace}, models $models, planner $planner, seed $seed; logs in $log_dir"
 if [ "$robot" = 0 ]; then
-  start abp_sim_bridge sim_bridge -p "model_index:=$object" -p "cube_seed:=$seed" \
-    -p "speedup:=$speedup"
+  start abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
+    -p "cube_seed:=$seed" -p "speedup:=$speedup"
 fi
 start abp_perception artag_detector
 start abp_perception aspect_matcher
@@ -145,7 +151,10 @@ start abp_belief belief
 # The four action servers in one process: four processes, each with its own executor
 # taking /joint_states, /odom and /clock, cost about 1.2 cores of the 2 when idle.
 start abp_skills skill_servers
-start abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
+# One BLAS thread: the planner's matrix products are small, and a thread pool fighting
+# the other nodes for 2 cores made first decisions at |M| = 1470 take up to 430 ms.
+OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+  start abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
 if [ -n "$record" ]; then
   start abp_bringup bag_recorder -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
 fi

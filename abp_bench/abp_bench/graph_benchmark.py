@@ -1,14 +1,17 @@
 """`graph_benchmark`: recognition episodes through the real graph in simulation.
 
-    graph_benchmark --episodes 20 [--faults] [--models robot] [--planner abp]
-                    [--seed S] [--json FILE]
+    graph_benchmark --episodes 20 [--world rules|mujoco] [--faults] [--models robot]
+                    [--planner abp] [--seed S] [--json FILE] [--no-build]
 
 Each episode is one `scripts/start_graph.sh` run (every node its own process,
 over DDS) with a seeded hidden cube from the model set; the result is compared
-with the sim's ground truth. --faults injects 10% grasp slips and missed pushes,
-10% missed tags per frame, 2 distractor tags and orbit odometry noise. A probe
-subscribed to /camera/image_raw and /abp/belief measures the wall-clock latency
-from an image to the belief update it caused (matched by header stamp).
+with the sim's ground truth, in the sim bridge's `--world` (mujoco: MuJoCo physics
+and camera; rules: contact rules and flat renderer). --faults injects 10% grasp slips
+and missed pushes, 10% missed tags per frame, 2 distractor tags and orbit odometry noise
+(in the MuJoCo world slips and misses are hand offsets drawn per contact, see
+docs/SIM_BRIDGE.md). A probe subscribed to /camera/image_raw and /abp/belief measures
+the wall-clock latency from an image to the belief update it caused (matched by header
+stamp).
 Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
 """
 
@@ -109,6 +112,10 @@ class LatencyProbe:
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='graph_benchmark', description=__doc__.split('\n\n')[0])
     parser.add_argument('--episodes', type=int, default=20)
+    parser.add_argument('--world', choices=('mujoco', 'rules'), default='rules',
+                        help='the sim bridge world (default rules)')
+    parser.add_argument('--no-build', action='store_true',
+                        help='do not run scripts/bootstrap.sh before each episode')
     parser.add_argument('--models', default='robot', help='as start_graph.sh --models')
     parser.add_argument('--planner', default='abp')
     parser.add_argument('--seed', type=int, default=0, help='model-set seed')
@@ -141,12 +148,15 @@ def stop_graph(proc):
 
 def run_episode(args, index, workdir, params_file):
     result_file = workdir / f'episode-{index}.json'
-    cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--models', args.models,
+    cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--world', args.world,
+           '--models', args.models,
            '--seed', str(args.seed), '--object', str(index), '--planner', args.planner,
            '--speedup', str(args.speedup), '--result-json', str(result_file),
            '--log-dir', str(workdir / f'logs-{index}'), '--timeout', str(args.timeout)]
     if params_file:
         cmd += ['--params', str(params_file)]
+    if args.no_build:
+        cmd += ['--no-build']
     started = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -185,7 +195,7 @@ def summarise(results, latencies, observation_latencies, args):
          f'{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} '
          f'({len(observation_latencies)} frames)'),
     ]
-    title = (f"{args.models} models, planner {args.planner}, "
+    title = (f"{args.world} world, {args.models} models, planner {args.planner}, "
              f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]

@@ -2,8 +2,11 @@
 is not installable from PyPI; scripts/start_graph.sh is the tested equivalent and
 starts the same nodes with the same parameters file).
 
-    ros2 launch abp_bringup abp.launch.py sim:=true models:=robot planner:=abp seed:=0 \
-        namespace:=robot1
+    ros2 launch abp_bringup abp.launch.py sim:=true world:=rules models:=robot planner:=cost \
+        seed:=0 namespace:=robot1
+
+`world` chooses the sim bridge's world: mujoco (MuJoCo physics and camera) or rules (the
+contact rules and the flat renderer; fast).
 
 The model-set parameters are set once for every node (`SetParameter`, the launch form
 of the `/**:` section in config/abp.yaml); `namespace` puts every node (and so every
@@ -33,9 +36,12 @@ def generate_launch_description():
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
+        DeclareLaunchArgument('world', default_value='rules',
+                              description='sim world: mujoco or rules',
+                              choices=['mujoco', 'rules']),
         DeclareLaunchArgument('models', default_value='robot',
                               description='model set: robot, random, full or visual'),
-        DeclareLaunchArgument('planner', default_value='abp',
+        DeclareLaunchArgument('planner', default_value='cost',
                               description='random, abp, abp2, abp3 or cost'),
         DeclareLaunchArgument('seed', default_value='0', description='model-set seed'),
         DeclareLaunchArgument('namespace', default_value='',
@@ -44,10 +50,13 @@ def generate_launch_description():
         SetParameter(name='model_set', value=LaunchConfiguration('models')),
         SetParameter(name='seed', value=LaunchConfiguration('seed')),
         # The sim bridge publishes /clock, so it runs on wall time.
-        node('abp_sim_bridge', 'sim_bridge', sim_time=False, condition=IfCondition(sim)),
+        node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world')},
+             sim_time=False, condition=IfCondition(sim)),
         node('abp_perception', 'artag_detector'),
         node('abp_perception', 'aspect_matcher'),
         node('abp_belief', 'belief'),
         node('abp_skills', 'skill_servers'),  # all four action servers, one process
-        node('abp_planner', 'planner', {'planner_mode': LaunchConfiguration('planner')}),
+        # One BLAS thread: see scripts/start_graph.sh.
+        node('abp_planner', 'planner', {'planner_mode': LaunchConfiguration('planner')},
+             additional_env={'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}),
     ])

@@ -35,7 +35,14 @@ SEED_RANGE = (0, 2**31 - 1)
 # parameter, a new model set takes effect at the next ~/reset_world.
 MODEL_SET_SPECS = tuple(replace(p, read_only=False) for p in POPULATION_SPECS)
 
+WORLDS = ('rules', 'mujoco')
+MUJOCO_ONLY = ' (world mujoco only)'
+
 PARAMETERS = (
+    ParamSpec('world', STRING, 'rules', 'Which world: mujoco = MuJoCo physics and rendering '
+              '(outcomes from mass, friction and contacts); rules = the contact rules of '
+              'docs/SIM_BRIDGE.md and the flat renderer (fast, for tests).', choices=WORLDS,
+              read_only=True),
     # -- time ---------------------------------------------------------------------------
     ParamSpec('rate', DOUBLE, 50.0, 'Simulation tick rate, Hz of simulation time: base and '
               'joint integration, contacts, /joint_states, /odom and /clock.', (1.0, 1000.0)),
@@ -111,6 +118,45 @@ PARAMETERS = (
               'y and N(0, sigma_rad^2) in yaw, unseen by /odom.'),
     ParamSpec('failure_seed', INT, 0, 'Seed of the failure draws, odometry noise and image '
               'noise.', SEED_RANGE),
+    # -- MuJoCo physics (docs/SIM_BRIDGE.md "The MuJoCo world") -----------------------------
+    ParamSpec('physics_rate', DOUBLE, 500.0, 'MuJoCo steps per second of simulation time, at '
+              'least (each tick is split into equal steps)' + MUJOCO_ONLY + '.',
+              (500.0, 10000.0)),
+    ParamSpec('cube_mass', DOUBLE, 0.75, 'Total cube mass, kg' + MUJOCO_ONLY + '.',
+              (0.01, 50.0)),
+    ParamSpec('heavy_mass_ratio', DOUBLE, 0.625, 'Eccentric cubes: mass of the heavy inner slab '
+              '(2 cm thick, against the heavy face) / total mass; 0.625 puts the centre of mass '
+              '2.5 cm off centre' + MUJOCO_ONLY + '.', (0.0, 0.95)),
+    ParamSpec('cube_friction', DOUBLE, 0.5, 'Sliding friction coefficient of the cube'
+              + MUJOCO_ONLY + '.', (0.01, 5.0)),
+    ParamSpec('floor_friction', DOUBLE, 0.5, 'Sliding friction coefficient of the floor'
+              + MUJOCO_ONLY + '.', (0.01, 5.0)),
+    ParamSpec('hand_friction', DOUBLE, 1.0, 'Sliding friction coefficient of the hand pads'
+              + MUJOCO_ONLY + '.', (0.01, 5.0)),
+    ParamSpec('hand_torsional_friction', DOUBLE, 0.001, 'Torsional friction of the hand pads, '
+              'm (torque about the contact normal per newton; 0 = none)' + MUJOCO_ONLY + '.',
+              (0.0, 0.1)),
+    ParamSpec('friction_scale', DOUBLE, 1.0, 'Multiplies every friction coefficient (cube, '
+              'floor, hands): a slippery or sticky world' + MUJOCO_ONLY + '.', (0.01, 10.0)),
+    ParamSpec('servo_stiffness_scale', DOUBLE, 1.0, 'Multiplies the torso and arm servo '
+              'gains (a weaker squeeze, more sag under load)' + MUJOCO_ONLY + '.',
+              (0.01, 10.0)),
+    ParamSpec('grasp_opening', DOUBLE, 0.0, 'Each hand is held this far outwards of its '
+              'commanded path, m (less squeeze, or none: the skills squeeze 5 mm)'
+              + MUJOCO_ONLY + '.', (0.0, 0.1)),
+    ParamSpec('joint_offsets', DOUBLE_ARRAY, None, 'Calibration errors: 13 angles (rad, URDF '
+              'joint order) added to the servo set points; empty = none' + MUJOCO_ONLY + '.'),
+    ParamSpec('slip_grasp_opening', DOUBLE, 0.01, 'p_slip_grasp in the MuJoCo world: a '
+              'faulty contact episode holds each hand this much further outwards, m '
+              '(added to grasp_opening).', (0.0, 0.1)),
+    ParamSpec('missed_push_offset', DOUBLE, 0.10, 'p_missed_push in the MuJoCo world: a '
+              'faulty contact episode holds each hand this much further outwards, m '
+              '(sideways: a push passes beside the cube, a grasp closes on nothing).',
+              (0.0, 0.3)),
+    ParamSpec('camera_shadows', BOOL, False, 'Render shadows (costs 10-20x render time)'
+              + MUJOCO_ONLY + '.'),
+    ParamSpec('camera_offsamples', INT, 0, 'Multisampling (anti-aliasing) samples'
+              + MUJOCO_ONLY + '.', (0, 16)),
 )
 PARAMETER_NAMES = tuple(p.name for p in PARAMETERS)
 _BY_NAME = {p.name: p for p in PARAMETERS}
@@ -143,6 +189,26 @@ class CameraConfig:
 
 
 @dataclass
+class MujocoConfig:
+    """The MuJoCo world's physical quantities and fault magnitudes (world mujoco)."""
+    physics_rate: float = 500.0
+    cube_mass: float = 0.75
+    heavy_mass_ratio: float = 0.625
+    cube_friction: float = 0.5
+    floor_friction: float = 0.5
+    hand_friction: float = 1.0
+    hand_torsional_friction: float = 0.001
+    friction_scale: float = 1.0
+    servo_stiffness_scale: float = 1.0
+    grasp_opening: float = 0.0
+    joint_offsets: tuple = ()
+    slip_grasp_opening: float = 0.01
+    missed_push_offset: float = 0.10
+    shadows: bool = False
+    offsamples: int = 0
+
+
+@dataclass
 class SimBridgeConfig:
     values: dict                 # the parameter values it was built from
     hidden: HiddenModel
@@ -156,6 +222,8 @@ class SimBridgeConfig:
     ground_truth_rate: float = 5.0
     failure_seed: int = 0
     look_at_cube: bool = True
+    world: str = 'rules'
+    mujoco: MujocoConfig = field(default_factory=MujocoConfig)
 
 
 def _array(value):
@@ -227,9 +295,19 @@ def build(values):
     distractors = make_distractors(int(v['distractors']), int(v['distractor_seed']),
                                    cube.position[:2], tag_size, hidden.n_tags,
                                    avoid=hidden.face_tags)
+    offsets = tuple(float(x) for x in _array(v['joint_offsets']))
+    if offsets and len(offsets) != 13:
+        raise ValueError('joint_offsets must give 13 angles (URDF joint order, as '
+                         f'/joint_states) or none, got {len(offsets)}')
+    mujoco = MujocoConfig(**{name: v[name] for name in (
+        'physics_rate', 'cube_mass', 'heavy_mass_ratio', 'cube_friction', 'floor_friction',
+        'hand_friction', 'hand_torsional_friction', 'friction_scale', 'servo_stiffness_scale',
+        'grasp_opening', 'slip_grasp_opening', 'missed_push_offset')},
+        joint_offsets=offsets, shadows=bool(v['camera_shadows']),
+        offsamples=int(v['camera_offsamples']))
     return SimBridgeConfig(dict(v), hidden, cube, settings, failures, camera, distractors,
                            speedup, bool(v['publish_clock']), gt_rate, int(v['failure_seed']),
-                           bool(v['look_at_cube']))
+                           bool(v['look_at_cube']), str(v['world']), mujoco)
 
 
 def refusal(values, changes):
@@ -249,6 +327,6 @@ def refusal(values, changes):
     return ''
 
 
-__all__ = ['LIVE_PARAMETERS', 'MODEL_SET_SPECS', 'PARAMETERS', 'PARAMETER_NAMES',
-           'CameraConfig', 'SimBridgeConfig', 'build', 'check_speedup', 'defaults',
+__all__ = ['LIVE_PARAMETERS', 'MODEL_SET_SPECS', 'PARAMETERS', 'PARAMETER_NAMES', 'WORLDS',
+           'CameraConfig', 'MujocoConfig', 'SimBridgeConfig', 'build', 'check_speedup', 'defaults',
            'description_note', 'refusal']

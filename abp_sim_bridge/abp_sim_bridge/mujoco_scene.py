@@ -278,8 +278,32 @@ def _add_cube(spec, cube):
     return body
 
 
-def build_spec(cube=None, settings=None):
-    """The scene as an MjSpec (see the module doc)."""
+def _add_distractors(spec, distractors):
+    """Flat tags lying in the scene (flat_renderer.Distractor: tag centre pose in ArUco
+    axes, tag size, white margin), visual only."""
+    for k, tag in enumerate(distractors):
+        h = tag.size * (0.5 + tag.margin)
+        corners = np.array([[-h, h], [h, h], [h, -h], [-h, -h]])
+        pose = np.asarray(tag.pose, dtype=float)
+        verts = corners @ pose[:3, :2].T + pose[:3, 3] + 0.0005 * pose[:3, 2]
+        tex = spec.add_texture(name=f'distractor_{k}', type=mujoco.mjtTexture.mjTEXTURE_2D)
+        image = tag_texture(int(tag.tag_id), 2 * h, tag.size)
+        tex.width, tex.height, tex.nchannel = image.shape[1], image.shape[0], 3
+        tex.data = image.tobytes()
+        mat = spec.add_material(name=f'distractor_{k}')
+        mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
+        mesh = spec.add_mesh(name=f'distractor_{k}')
+        mesh.uservert = verts.ravel().tolist()
+        mesh.userface = [0, 3, 2, 0, 2, 1]
+        mesh.usertexcoord = [0, 0, 1, 0, 1, 1, 0, 1]
+        mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
+        spec.worldbody.add_geom(name=f'distractor_{k}', type=mujoco.mjtGeom.mjGEOM_MESH,
+                                meshname=mesh.name, material=mat.name, contype=0,
+                                conaffinity=0, group=1)
+
+
+def build_spec(cube=None, settings=None, distractors=()):
+    """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere."""
     cube = cube or CubeSpec()
     settings = settings or SceneSettings()
     spec = _urdf_spec()
@@ -312,12 +336,13 @@ def build_spec(cube=None, settings=None):
     world.add_light(name='sun', pos=[1.0, 1.0, 3.0], dir=[-0.3, -0.3, -1.0],
                     diffuse=[0.6, 0.6, 0.6], castshadow=settings.shadows)
     _add_cube(spec, cube)
+    _add_distractors(spec, distractors)
     return spec
 
 
-def build_model(cube=None, settings=None):
+def build_model(cube=None, settings=None, distractors=()):
     """(MjModel, MjSpec) of the scene."""
-    spec = build_spec(cube, settings)
+    spec = build_spec(cube, settings, distractors)
     return spec.compile(), spec
 
 

@@ -194,7 +194,8 @@ class MujocoWorld(CommandInputs):
     """
 
     def __init__(self, cube, face_tags=(0, 1, 2, 3, 4, 5), settings=None,
-                 kinematics=None, start_time_ns=0, robot_pose=(0.0, 0.0, 0.0)):
+                 kinematics=None, start_time_ns=0, robot_pose=(0.0, 0.0, 0.0),
+                 distractors=()):
         self.settings = s = settings or MujocoSettings()
         self.kin = kin = kinematics if kinematics is not None else RobotKinematics()
         self.period_ns = s.period_ns
@@ -212,7 +213,7 @@ class MujocoWorld(CommandInputs):
             floor_friction=s.floor_friction * s.friction_scale,
             servo_stiffness_scale=s.servo_stiffness_scale, shadows=s.shadows,
             offsamples=s.offsamples, width=s.width, height=s.height)
-        self.model, self.spec = build_model(self.cube_spec, self.scene_settings)
+        self.model, self.spec = build_model(self.cube_spec, self.scene_settings, distractors)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.joint_names = kin.joint_names
@@ -234,6 +235,7 @@ class MujocoWorld(CommandInputs):
         self._hand_body = {side: m.body(HAND_BODIES[side]).id for side in SIDES}
         self._hand_geom = {side: m.geom(f'{HAND_BODIES[side]}_ball').id for side in SIDES}
         self._optical_body = m.body('camera_optical_frame').id
+        self._face_geoms = np.array([m.geom(f'arcube_face_{f}').id for f in range(6)])
         self.heavy_face = cube.heavy_face
         self.edge = cube.edge
 
@@ -246,6 +248,7 @@ class MujocoWorld(CommandInputs):
             raise ValueError('initial_positions outside the joint limits')
         self._vmax = np.where(np.isfinite(kin.velocity_limits) & (kin.velocity_limits > 0),
                               kin.velocity_limits, np.inf)
+        self._grasp_opening = s.grasp_opening
         self._offsets = self._set_point_offsets()
         d = self.data
         d.qpos[self._qadr] = q0
@@ -283,14 +286,22 @@ class MujocoWorld(CommandInputs):
         offsets = np.zeros(kin.nq)
         if len(s.joint_offsets):
             offsets += np.asarray(s.joint_offsets, dtype=float)
-        if s.grasp_opening:
+        if self._grasp_opening:
             # Roll outwards is + on the left arm and - on the right (URDF comments).
-            roll = s.grasp_opening / ARM_REACH
+            roll = self._grasp_opening / ARM_REACH
             offsets[kin.joint_index('left_shoulder_roll_joint')] += roll
             offsets[kin.joint_index('right_shoulder_roll_joint')] -= roll
         return offsets
 
-    # -- commands ---------------------------------------------------------------------
+    def set_grasp_opening(self, opening):
+        """Hold each hand `opening` m outwards of its commanded path from now on (a fault
+        drawn per contact episode; settings.grasp_opening is the start value)."""
+        self._grasp_opening = float(opening)
+        self._offsets = self._set_point_offsets()
+
+    @property
+    def grasp_opening(self):
+        return self._grasp_opening
 
     # -- the tick -----------------------------------------------------------------------
     def step(self):
@@ -506,10 +517,11 @@ class MujocoWorld(CommandInputs):
         """Copy of the state a frame needs (render it later, e.g. in another thread)."""
         return self.data.qpos.copy()
 
-    def render(self, qpos=None, encoding='rgb8'):
+    def render(self, qpos=None, encoding='rgb8', blank_faces=()):
         """Head camera image (HxWx3 uint8 RGB, or BGR / mono8) of the current state or of
-        a `snapshot()`. The first call creates the GL context in the calling thread; call
-        it from one thread only."""
+        a `snapshot()`; the tags of the body faces `blank_faces` are not drawn (a missed
+        tag: the face shows blank). The first call creates the GL context in the calling
+        thread; call it from one thread only."""
         if self._renderer is None:
             s, intr = self.settings, camera_intrinsics()
             try:
@@ -525,6 +537,8 @@ class MujocoWorld(CommandInputs):
             mujoco.mj_kinematics(self.model, data)
             mujoco.mj_camlight(self.model, data)
         self._renderer.update_scene(data, camera=CAMERA_NAME)
+        if len(blank_faces):
+            self._blank(data, blank_faces)
         img = self._renderer.render()
         if encoding == 'rgb8':
             return img
@@ -534,6 +548,16 @@ class MujocoWorld(CommandInputs):
         if encoding == 'mono8':
             return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
         raise ValueError(f'encoding must be rgb8, bgr8 or mono8, got {encoding!r}')
+
+    def _blank(self, data, faces):
+        """Sink the tag quads of `faces` into the cube (its white box face then hides them)."""
+        hidden = set(self._face_geoms[list(faces)].tolist())
+        centre = data.xpos[self._cube_body]
+        scene = self._renderer.scene
+        for i in range(scene.ngeom):
+            geom = scene.geoms[i]
+            if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.objid in hidden:
+                geom.pos[:] = centre + 0.5 * (geom.pos - centre)
 
     def close(self):
         if self._renderer is not None:

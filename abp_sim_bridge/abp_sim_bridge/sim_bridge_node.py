@@ -14,17 +14,23 @@ Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
              initial joints) from the current parameters; simulation time goes on.
 
+The world is `world:=rules` (rules_world + flat_renderer) or `world:=mujoco` (MuJoCo
+physics and rendering), chosen in `worlds`.
+
 Threads: the executor (main thread) takes commands and services; a simulation thread
-steps the `RulesWorld` at `rate` Hz of simulation time, paced to `speedup` x wall time
+steps the world at `rate` Hz of simulation time, paced to `speedup` x wall time
 (`sim_timing.Pacer`), and
 publishes clock, joint states, odometry and ground truth; a render thread draws camera
 frames (scene snapshots taken by the simulation thread at `camera_rate`). When the
 renderer is still busy with the previous frame, the simulation waits: every frame is
-drawn, simulation time just runs slower than asked for.
+drawn, simulation time just runs slower than asked for. Rendering stays in the render
+thread (MuJoCo's GL context belongs to the thread that rendered first): a reset's new
+camera is first used, and the old one closed, there.
 
 Topic names are relative (abp_common.names), so the node runs under a namespace; /clock
-stays absolute. The science lives in `rules_world`, `rules_contact`, `rules_physics`,
-`joint_trajectory_follower`, `flat_renderer`, `scenario`, `sim_timing` and `config`.
+stays absolute. The science lives in `worlds`, `rules_world`, `rules_contact`,
+`rules_physics`, `mujoco_world`, `mujoco_scene`, `joint_trajectory_follower`,
+`flat_renderer`, `scenario`, `sim_timing` and `config`.
 """
 
 import queue
@@ -57,11 +63,10 @@ from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import SimGroundTruth
 
 from . import config as cfg
-from .flat_renderer import ArcubeRenderer
 from .joint_trajectory_follower import TrajectoryError, TrajectoryPoint
-from .rules_world import make_rules_world
 from .scenario import drawn_tags
 from .sim_timing import CameraSchedule, GroundTruthSchedule, Pacer, sim_seconds
+from .worlds import check_rendering, make_world
 
 ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
 
@@ -82,11 +87,8 @@ def _pose_msg(position, rotation):
 class _Frame:
     """What the render thread needs to draw one camera frame."""
     stamp: Time
-    camera_pose: np.ndarray
-    cube_pose: np.ndarray
-    tags: tuple
-    renderer: ArcubeRenderer
-    distractors: list
+    camera: object      # worlds.FlatCamera or worlds.MujocoCamera
+    snapshot: tuple     # camera.capture(...)
 
 
 class SimBridgeNode(Node):
@@ -98,6 +100,8 @@ class SimBridgeNode(Node):
             raise ValueError(f'{error} (write a double with a decimal point, e.g. '
                              'speedup:=10.0, and integer arrays as [1,2,3])') from error
         self.config = cfg.build(values)
+        if self.config.world == 'mujoco' and self.config.camera.rate > 0:
+            check_rendering()  # no EGL: a configuration error with the fix, not a traceback
         self.kin = RobotKinematics()
         self.intrinsics = camera_intrinsics()
         self._lock = threading.Lock()
@@ -129,7 +133,8 @@ class SimBridgeNode(Node):
 
         h = self.config.hidden
         self.get_logger().info(
-            f'sim_bridge: hidden cube {h.object_id} (model_index {h.model_index}), '
+            f'sim_bridge: {self.config.world} world, hidden cube {h.object_id} '
+            f'(model_index {h.model_index}), '
             f'{self.config.settings.rate:g} Hz, camera {self.config.camera.rate:g} Hz, '
             f'speedup {self.config.speedup:g}, publish_clock {self.config.publish_clock}')
         self._frames = queue.Queue(maxsize=1)
@@ -154,14 +159,8 @@ class SimBridgeNode(Node):
 
     def _build(self, config, start_time_ns):
         """(Re)build the world from `config`. Call with the lock held (or before threads)."""
-        self.sim = make_rules_world(config, self.kin, start_time_ns)
+        self.sim, self.camera = make_world(config, self.kin, self.intrinsics, start_time_ns)
         cam = config.camera
-        intr = self.intrinsics
-        self.renderer = ArcubeRenderer(intr.K, intr.width, intr.height, edge=cam.cube_size,
-                                       tag_edge=cam.tag_size, encoding=cam.encoding,
-                                       effects=cam.effects, supersample=cam.supersample,
-                                       seed=config.failure_seed, noise_bank=cam.noise_bank)
-        self.distractors = config.distractors
         self.hidden = config.hidden
         self._tag_miss_rng = np.random.default_rng(config.failure_seed + 1)
         self.config = config
@@ -174,12 +173,12 @@ class SimBridgeNode(Node):
     def _on_reset(self, request, response):
         try:
             config = cfg.build(read_all(self, cfg.PARAMETERS))
+            with self._lock:
+                self._build(config, self.sim.time_ns)
         except ValueError as err:
             response.success = False
             response.message = f'reset refused: {err}'
             return response
-        with self._lock:
-            self._build(config, self.sim.time_ns)
         self._pacer.set_speedup(config.speedup)
         h = config.hidden
         response.success = True
@@ -251,8 +250,7 @@ class SimBridgeNode(Node):
             if self._camera_schedule.due(t_ns):
                 tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
                                   self._tag_miss_rng)
-                frame = _Frame(stamp, sim.camera_pose(), sim.display_cube().pose(), tags,
-                               self.renderer, self.distractors)
+                frame = _Frame(stamp, self.camera, self.camera.capture(sim, tags))
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
@@ -320,19 +318,23 @@ class SimBridgeNode(Node):
         return msg
 
     def _render_loop(self):
+        camera = None
         try:
             while not self._stop.is_set():
                 try:
                     frame = self._frames.get(timeout=0.1)
                 except queue.Empty:
                     continue
-                img = frame.renderer.render(frame.camera_pose, frame.cube_pose, frame.tags,
-                                            distractors=frame.distractors)
+                if frame.camera is not camera:  # a reset's new world: free the old one here
+                    if camera is not None:
+                        camera.close()
+                    camera = frame.camera
+                img = camera.render(frame.snapshot)
                 msg = Image()
                 msg.header.stamp = frame.stamp
                 msg.header.frame_id = self.intrinsics.frame_id
                 msg.height, msg.width = img.shape[:2]
-                msg.encoding = frame.renderer.encoding
+                msg.encoding = camera.encoding
                 msg.step = int(img.strides[0])
                 msg.data = img.tobytes()
                 info = self._camera_info
@@ -345,6 +347,9 @@ class SimBridgeNode(Node):
             self._failed = True
             self.get_logger().error('render thread failed:\n' + traceback.format_exc())
             rclpy.try_shutdown(context=self.context)
+        finally:
+            if camera is not None:
+                camera.close()
 
     def stop(self):
         """Stop the threads; returns True when one of them failed."""

@@ -1,4 +1,5 @@
-"""The `sim_bridge` node over real DDS: base and joint integration, sim time at the set
+"""The `sim_bridge` node over real DDS in the rules world (world:=rules; the MuJoCo world's
+DDS test is test_sim_bridge_mujoco.py): base and joint integration, sim time at the set
 speed-up, camera images that ArUco reads as the ground truth says, and — for every mass
 variant and every manual action — the cube state after real hand trajectories, checked
 against MODEL.md's physics table; bad parameters are refused."""
@@ -132,7 +133,9 @@ def tester_factory(rclpy_context):
         tester.close()
 
 
-def start_bridge(ros_processes, **params):
+def start_bridge(ros_processes, world, **params):
+    """Start the node in `world` (rules or mujoco: each test names its world)."""
+    params = {'world': world, **params}
     argv = [bridge_executable(), '--ros-args']
     for name, value in params.items():
         argv += ['-p', f'{name}:={value}']
@@ -152,7 +155,7 @@ def publish_when_matched(tester, publisher, msg, timeout=10):
 @pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_factory):
     speedup = 4.0
-    proc = start_bridge(ros_processes, speedup=speedup, camera_rate=0.0)
+    proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0)
     t = tester_factory('clock', 'odom', 'joint_states')
     assert t.spin_until(lambda: len(t.msgs['clock']) > 20, 30), 'no /clock'
     # Simulation time against wall time, over ~2 s of wall time.
@@ -211,7 +214,8 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
 
 
 def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
-    start_bridge(ros_processes, speedup=4.0, camera_rate=0.0, look_at_cube=False)
+    start_bridge(ros_processes, world='rules', speedup=4.0, camera_rate=0.0,
+                 look_at_cube=False)
     t = tester_factory('joint_states')
     kin = RobotKinematics()
     assert t.spin_until(lambda: len(t.msgs['joint_states']) > 5, 30), 'no /joint_states'
@@ -276,7 +280,8 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
 # -- camera -------------------------------------------------------------------------------
 
 def test_camera_images_show_the_tags_the_ground_truth_says(ros_processes, tester_factory):
-    start_bridge(ros_processes, speedup=1.0, camera_encoding='bgr8', distractors=3,
+    start_bridge(ros_processes, world='rules', speedup=1.0, camera_encoding='bgr8',
+                 distractors=3,
                  cube_x=0.9, cube_y=0.15, cube_yaw=0.35, camera_noise_std=1.5,
                  face_tags=str(TAGS).replace(' ', ''))
     t = tester_factory('image', 'camera_info', 'joint_states', 'ground_truth')
@@ -348,7 +353,8 @@ def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processe
                                                             tester_factory):
     """Uniform + the 6 heavy faces: the cube stands with body +z up and body +x away from
     the robot, so the six heavy faces point in all six V directions."""
-    proc = start_bridge(ros_processes, speedup=20.0, camera_rate=0.0, ground_truth_rate=10.0,
+    proc = start_bridge(ros_processes, world='rules', speedup=20.0, camera_rate=0.0,
+                        ground_truth_rate=10.0,
                         face_tags=str(TAGS).replace(' ', ''), mass_index=0)
     t = tester_factory('ground_truth')
     plan = hand_path(action, cube_xy=(0.40, 0.0), ik=DlsIK())
@@ -405,7 +411,8 @@ def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processe
     ('camera_rate:=100.0', 'camera_rate'),
 ])
 def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([bridge_executable(), '--ros-args', '-p', override],
+    result = subprocess.run([bridge_executable(), '--ros-args', '-p', 'world:=rules',
+                             '-p', override],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
     assert 'configuration error' in result.stderr and expected in result.stderr

@@ -1,11 +1,14 @@
 """`recognize`: sends one Recognize goal and prints a readable trace and the result.
 
-    recognize [--planner MODE] [--max-actions N] [--threshold P] [--result-json FILE]
-              [--timeout S] [--wait S] [--ros-args -r __ns:=/robot1]
+    recognize [--planner MODE] [--max-actions N] [--stopping-rule RULE] [--target-error E]
+              [--threshold P] [--result-json FILE] [--timeout S] [--wait S]
+              [--ros-args -r __ns:=/robot1]
 
 Trace lines show each chosen action with its expected information gain, the top
-beliefs and the entropy. In sim, the result is compared with the sim bridge's
-ground truth (read here, by the user-facing client, never by a recognition node).
+beliefs and the entropy. Beliefs come from the goal's feedback as well as from
+abp/belief, so the trace does not depend on when the topic subscription matched.
+In sim, the result is compared with the sim bridge's ground truth (read here, by the
+user-facing client, never by a recognition node).
 Exit code 0 when the recognition succeeded (and matched the ground truth when
 there is one), 1 otherwise, 2 for bad arguments, 130 on Ctrl-C (the goal is
 cancelled first). Names are relative (abp_common.names): under a namespace the client
@@ -37,15 +40,23 @@ def parse_args(argv):
     parser.add_argument('--planner', default='', help="random, abp, abp2, abp3 or cost "
                         "(default: the planner node's parameter)")
     parser.add_argument('--max-actions', type=int, default=0)
-    parser.add_argument('--threshold', type=float, default=0.0)
+    parser.add_argument('--stopping-rule', default='', choices=('', 'error', 'posterior',
+                                                                 'fixed'),
+                        help="default: the planner node's parameter (error)")
+    parser.add_argument('--target-error', type=float, default=0.0,
+                        help='target P(wrong object) of the error rule; 0 = the node default')
+    parser.add_argument('--threshold', type=float, default=0.0,
+                        help='top posterior of the posterior rule; 0 = the node default')
     parser.add_argument('--result-json', default='')
     parser.add_argument('--timeout', type=float, default=1800.0,
                         help='wall-clock seconds before the goal is cancelled')
     parser.add_argument('--wait', type=float, default=120.0,
                         help='seconds to wait for the graph (the Recognize server)')
     args = parser.parse_args(argv)
-    if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0:
-        parser.error('--max-actions must be >= 0 and --threshold in [0, 1)')
+    if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0 or \
+            not 0.0 <= args.target_error < 0.5:
+        parser.error('--max-actions must be >= 0, --threshold in [0, 1) and --target-error '
+                     'in [0, 0.5)')
     return args
 
 
@@ -60,6 +71,7 @@ class Tracer:
     def __init__(self, node):
         self.belief = None
         self.ground_truth = None
+        self.printed_steps = set()
         events = qos.reliable(TRACE_DEPTH)
         node.create_subscription(PlanStep, names.PLAN, self.on_plan, events)
         node.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
@@ -84,7 +96,14 @@ class Tracer:
         print(f'action {msg.sequence:<3}{msg.action:<10} {outcome} ({duration:.1f} s)',
               flush=True)
 
+    def on_feedback(self, feedback_msg):
+        self.on_belief(feedback_msg.feedback.belief)
+
     def on_belief(self, msg):
+        # The same belief can come twice (topic and feedback): print each step once.
+        if msg.step in self.printed_steps:
+            return
+        self.printed_steps.add(msg.step)
         self.belief = msg
         if msg.object_ids:
             print(f'belief    step {msg.step:<3} H {msg.entropy:6.3f} bits  top: '
@@ -116,13 +135,16 @@ def main(argv=None):
                   'planner running?', file=sys.stderr)
             return 1
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
-                              posterior_threshold=args.threshold)
-        sent = client.send_goal_async(goal)
+                              posterior_threshold=args.threshold,
+                              stopping_rule=args.stopping_rule,
+                              target_error=args.target_error)
+        tracer.printed_steps.clear()  # a latched belief of an earlier episode was printed
+        sent = client.send_goal_async(goal, feedback_callback=tracer.on_feedback)
         spin_until(node, sent.done, 30.0)
         handle = sent.result() if sent.done() else None
         if handle is None or not handle.accepted:
-            print('[recognize] goal rejected (unknown planner mode, or a recognition is '
-                  'already running)', file=sys.stderr)
+            print('[recognize] goal rejected (unknown planner mode or stopping rule, or a '
+                  'recognition is already running: see the planner log)', file=sys.stderr)
             return 1
         print(f"recognize goal accepted (planner {args.planner or 'default'})", flush=True)
         result_future = handle.get_result_async()
@@ -159,6 +181,7 @@ def report(response, tracer, result_json):
         'object_id': result.object_id,
         'posterior': float(result.posterior),
         'actions': int(result.actions_taken),
+        'candidates': dict(zip(result.top_object_ids, map(float, result.top_posteriors))),
         'elapsed_s': elapsed,
         'entropy': float(tracer.belief.entropy) if tracer.belief else None,
     }
@@ -169,6 +192,10 @@ def report(response, tracer, result_json):
     print(f"result: {summary['status']}: {result.object_id or '-'} posterior "
           f"{result.posterior:.3f} after {result.actions_taken} actions, {elapsed:.1f} s "
           f"({result.reason})", flush=True)
+    if response.status != GoalStatus.STATUS_SUCCEEDED and result.top_object_ids:
+        print('not identified; candidates: ' + ', '.join(
+            f'{oid} {p:.3f}' for oid, p in zip(result.top_object_ids, result.top_posteriors)),
+            flush=True)
     if truth is not None:
         print(f"ground truth: {truth.object_id} -> "
               f"{'correct' if summary['correct'] else 'WRONG'}", flush=True)

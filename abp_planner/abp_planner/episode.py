@@ -50,6 +50,23 @@ class PosteriorStop:
         return StopCheck(False, False, '')
 
 
+class RuleStop:
+    """A `stopping.StoppingRule` on the abp_msgs/Belief the node receives: the rule sees the
+    dense node belief (so its twin test works), and its verdict becomes a StopCheck whose
+    success says whether the object was identified (not just the action budget spent)."""
+
+    def __init__(self, rule, num_nodes):
+        self.rule = rule
+        self.num_nodes = int(num_nodes)
+
+    def check(self, belief, actions_taken):
+        if not belief.node_indices:
+            decision = self.rule.check_marginal(np.asarray(belief.probabilities), actions_taken)
+        else:
+            decision = self.rule.check(belief_array(belief, self.num_nodes), actions_taken)
+        return StopCheck(decision.stop, decision.identified, decision.reason)
+
+
 class EpisodeResult(NamedTuple):
     outcome: str  # SUCCEEDED, CANCELED or ABORTED (how the goal ends)
     success: bool

@@ -6,15 +6,27 @@
 from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
 
 from .planner import PLANNER_NAMES
+from .stopping import DEFAULT_TARGET_ERROR, STOP_RULES
 
 PLANNER_SPECS = (
-    ParamSpec('planner_mode', STRING, 'abp', 'Default planner of a Recognize goal.',
-              choices=PLANNER_NAMES),
+    ParamSpec('planner_mode', STRING, 'cost', 'Default planner of a Recognize goal (cost: '
+              'information gain per second of action time, the one that met every accuracy '
+              'and latency goal in docs/BENCHMARKS.md).', choices=PLANNER_NAMES),
+    ParamSpec('planning_budget_s', DOUBLE, 0.1, 'Wall time a multi-ply planner (abp2, abp3, '
+              'cost) may search per decision; it deepens until the budget is spent and '
+              'returns the deepest finished search. 0 = unbounded.', (0.0, 60.0)),
+    ParamSpec('stopping_rule', STRING, 'error', 'Default stopping rule of a Recognize goal: '
+              'error (P(wrong object | evidence) <= target_error), posterior (top posterior > '
+              'posterior_threshold) or fixed (run max_actions).', choices=STOP_RULES),
+    ParamSpec('target_error', DOUBLE, DEFAULT_TARGET_ERROR, 'Default target probability of '
+              'naming the wrong object (stopping_rule error).', (1e-9, 0.5)),
+    ParamSpec('fault_margin', BOOL, False, 'stopping_rule error: the decision must also '
+              'survive removing one false tag from the evidence (about 1.5 more actions).'),
     ParamSpec('alpha', DOUBLE, 0.1, 'Alg. 3 threshold on predicted aspect nodes, relative to '
               'the max.', (0.0, 1.0)),
     ParamSpec('max_actions', INT, 30, 'Default action budget of a Recognize goal.', (1, 1000)),
     ParamSpec('posterior_threshold', DOUBLE, 0.95, 'Default stopping posterior of a Recognize '
-              'goal.', (0.5, 0.999999)),
+              'goal (stopping_rule posterior).', (0.5, 0.999999)),
     ParamSpec('skill_timeout', DOUBLE, 180.0, 'Seconds a skill may take before it is '
               'cancelled.', (1.0, 3600.0)),
     ParamSpec('observation_timeout', DOUBLE, 20.0, 'Seconds to wait for a fresh observation '

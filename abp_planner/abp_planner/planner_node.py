@@ -42,13 +42,17 @@ from .episode import (
     ABORTED,
     CANCELED,
     EpisodeRunner,
-    PosteriorStop,
     RecognitionAborted,
+    RuleStop,
     expected_gain,
 )
 from .markers import belief_markers
 from .planner import PLANNER_NAMES, make_planner
 from .planner_config import PLANNER_SPECS
+from .stopping import STOP_RULES, StoppingRule
+
+# Candidates a Recognize result lists.
+TOP_CANDIDATES = 5
 
 SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 # Planner action name -> (skill on abp/skills/<skill>, its goal).
@@ -70,6 +74,8 @@ class PlannerNode(Node):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
         self.model_set = model_set_from_values(values)
         self.model_set_id = fingerprint(self.model_set)
+        # The twin classes of the stopping rule depend on the model set only: once.
+        self._twins = StoppingRule.for_model_set(self.model_set).node_class
         self._group = ReentrantCallbackGroup()
         self._belief_lock = threading.Condition()
         self._belief_msg = None
@@ -110,7 +116,7 @@ class PlannerNode(Node):
             callback_group=self._group)
         self.get_logger().info(
             f'planner ready over {self.model_set.num_models} models '
-            f'(mode {values["planner_mode"]})')
+            f'(mode {values["planner_mode"]}, stopping rule {values["stopping_rule"]})')
 
     def _param(self, name):
         return self.get_parameter(name).value
@@ -139,6 +145,14 @@ class PlannerNode(Node):
         if mode not in PLANNER_NAMES:
             self.get_logger().warning(f'Recognize goal rejected: unknown planner mode {mode!r}')
             return GoalResponse.REJECT
+        if goal.stopping_rule and goal.stopping_rule not in STOP_RULES:
+            self.get_logger().warning('Recognize goal rejected: unknown stopping rule '
+                                      f'{goal.stopping_rule!r} ({", ".join(STOP_RULES)})')
+            return GoalResponse.REJECT
+        if not 0.0 <= goal.target_error < 0.5 or not 0.0 <= goal.posterior_threshold < 1.0:
+            self.get_logger().warning('Recognize goal rejected: target_error must be in '
+                                      '[0, 0.5) and posterior_threshold in [0, 1)')
+            return GoalResponse.REJECT
         if self._busy.locked():
             self.get_logger().warning('Recognize goal rejected: a recognition is running')
             return GoalResponse.REJECT
@@ -151,14 +165,27 @@ class PlannerNode(Node):
             self._goal_handle = goal_handle
             self._mode = goal.planner_mode or params['planner_mode']
             planner = make_planner(self._mode, self.model_set, alpha=params['alpha'],
-                                   seed=params['planner_seed'])
-            stopping = PosteriorStop(goal.posterior_threshold or params['posterior_threshold'],
-                                     goal.max_actions or params['max_actions'])
+                                   seed=params['planner_seed'],
+                                   planning_budget_s=params['planning_budget_s'] or None)
+            stopping = RuleStop(self._stopping_rule(goal, params), self.model_set.num_nodes)
             runner = EpisodeRunner(planner, self, self.model_set.num_nodes, stopping,
                                    params['observation_timeout'], self.get_logger())
             started = self.get_clock().now()
             episode = runner.run()
             return self._finish(goal_handle, episode, started)
+
+    def _stopping_rule(self, goal, params):
+        """The goal's stopping rule; a field left at its zero value takes the parameter."""
+        # A goal that names only a posterior threshold asks for the posterior rule.
+        kind = goal.stopping_rule or ('posterior' if goal.posterior_threshold
+                                      else params['stopping_rule'])
+        target_error = goal.target_error or params['target_error']
+        posterior = goal.posterior_threshold or params['posterior_threshold']
+        return StoppingRule(kind=kind, target_error=target_error, stop_posterior=posterior,
+                            max_actions=goal.max_actions or params['max_actions'],
+                            observation_params=self.model_set.observation_params,
+                            n_tags=self.model_set.n_tags, node_class=self._twins,
+                            fault_margin=params['fault_margin'])
 
     def _finish(self, goal_handle, episode, started):
         result = Recognize.Result(actions_taken=episode.actions_taken, success=episode.success,
@@ -167,10 +194,13 @@ class PlannerNode(Node):
         if belief.object_ids:
             result.object_id = belief.object_ids[0]
             result.posterior = float(belief.probabilities[0])
+            result.top_object_ids = list(belief.object_ids[:TOP_CANDIDATES])
+            result.top_posteriors = [float(p) for p in belief.probabilities[:TOP_CANDIDATES]]
         result.elapsed = (self.get_clock().now() - started).to_msg()
         if episode.outcome == CANCELED:
             goal_handle.canceled()
-        elif episode.outcome == ABORTED:
+        elif episode.outcome == ABORTED or not episode.success:
+            # Not identified (budget spent, a node lost): never reported as a success.
             goal_handle.abort()
         else:
             goal_handle.succeed()

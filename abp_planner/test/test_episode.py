@@ -16,10 +16,12 @@ from abp_planner.episode import (
     EpisodeRunner,
     PosteriorStop,
     RecognitionAborted,
+    RuleStop,
     belief_array,
     expected_gain,
 )
 from abp_planner.planner import Decision
+from abp_planner.stopping import StoppingRule
 
 NUM_NODES = 96  # two models
 
@@ -242,3 +244,18 @@ def test_helpers():
     assert stop.check(belief(1, 0.9), 0).success
     assert stop.check(belief(1, 0.5), 4) == (True, False, 'action budget of 4 spent')
     assert not stop.check(belief(1, 0.5), 3).stop
+
+
+def test_rule_stop_reports_identification_only_for_an_answer():
+    rule = RuleStop(StoppingRule(kind='error', target_error=0.003, max_actions=4), NUM_NODES)
+    assert rule.check(belief(3, 0.999), 1) == (True, True, rule.check(belief(3, 0.999),
+                                                                        1).reason)
+    assert 'P(wrong)' in rule.check(belief(3, 0.999), 1).reason
+    unsure = rule.check(belief(3, 0.9), 1)
+    assert not unsure.stop
+    spent = rule.check(belief(3, 0.9), 4)
+    assert spent.stop and not spent.success and 'action limit' in spent.reason
+    # Without node beliefs the rule decides on the object marginal.
+    marginal_only = SimpleNamespace(step=1, probabilities=[0.999, 0.001], object_ids=['a', 'b'],
+                                    entropy=0.0, node_indices=[], node_probabilities=[])
+    assert rule.check(marginal_only, 0).success

@@ -112,6 +112,28 @@ def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, cli
     assert response.result.actions_taken == len(executed)
 
 
+def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client, spin):
+    node, executor, action_client, executed, plans = client
+    # One action cannot tell a twin from its siblings: the budget ends the episode, and a
+    # goal that did not identify the object must not report success.
+    models = robot_set(seed=SEED)
+    twin = int(next(i for i in range(models.num_models) if models.mass[i] != 0))
+    start_graph(ros_processes, twin)
+    response = recognize(executor, action_client, spin,
+                         Recognize.Goal(max_actions=1, stopping_rule='error'))
+    assert response.status == GoalStatus.STATUS_ABORTED
+    assert not response.result.success
+    assert 'action limit' in response.result.reason
+    assert response.result.actions_taken == 1
+    assert len(response.result.top_object_ids) >= 2
+    assert list(response.result.top_posteriors) == sorted(response.result.top_posteriors,
+                                                          reverse=True)
+    # A goal naming an unknown stopping rule is refused up front.
+    send = action_client.send_goal_async(Recognize.Goal(stopping_rule='eventually'))
+    assert spin(executor, send.done, 10)
+    assert not send.result().accepted
+
+
 def test_cancel_stops_the_loop(ros_processes, client, spin):
     node, executor, action_client, executed, plans = client
     start_graph(ros_processes, 3)

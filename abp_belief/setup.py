@@ -23,6 +23,7 @@ setup(
         'console_scripts': [
             'belief = abp_belief.belief_node:main',
             'models = abp_belief.models_cli:main',
+            'learn_atg = abp_belief.learn_atg_cli:main',
         ],
     },
 )

@@ -5,6 +5,13 @@ The header holds the format name and version, n_tags, counts, parameters, each
 array's dtype and shape and the SHA-256 of the arrays. Transition matrices are
 rebuilt from the stored outcome tables; aspects are re-derived from the faces and
 must match the stored ones.
+
+Version 2 (learned ATGs, issue 13) adds, optionally, ``outcome_counts`` (the experience
+behind each edge of a learned table, the shape of ``outcome_states``) and a ``learning``
+header entry (how the tables were learned; null for hand-written ones). Version 1 files
+are still read (no counts). The header's sha256 covers every stored array; `fingerprint`
+(the model-set id the nodes publish) covers the version-1 arrays only, i.e. what the
+models predict, not the experience behind it.
 """
 
 from __future__ import annotations
@@ -22,8 +29,8 @@ from .cube import ACTIONS, NUM_MASS_VARIANTS, STATES_PER_MODEL, check_n_tags
 from .modelset import ModelSet, ObservationParams, TransitionParams
 
 FORMAT_NAME = 'abp_belief.modelset'
-FORMAT_VERSION = 1
-SUPPORTED_VERSIONS = (1,)
+FORMAT_VERSION = 2
+SUPPORTED_VERSIONS = (1, 2)
 _ZIP_MAGIC = b'PK\x03\x04'
 
 # name -> (dtype, shape template); symbols M (models), N (nodes), A (aspects), K (outcomes).
@@ -37,6 +44,10 @@ ARRAY_SPECS = {
     'outcome_states': ('int16', (len(ACTIONS), NUM_MASS_VARIANTS, STATES_PER_MODEL, 'K')),
     'outcome_probs': ('float64', (len(ACTIONS), NUM_MASS_VARIANTS, STATES_PER_MODEL, 'K')),
 }
+# Version 2: stored when present (learned tables).
+OPTIONAL_ARRAY_SPECS = {
+    'outcome_counts': ('float64', (len(ACTIONS), NUM_MASS_VARIANTS, STATES_PER_MODEL, 'K')),
+}
 
 
 class ModelFileError(Exception):
@@ -44,7 +55,7 @@ class ModelFileError(Exception):
 
 
 def _arrays_of(model_set: ModelSet) -> dict[str, np.ndarray]:
-    return {
+    arrays = {
         'faces': model_set.faces,
         'mass': model_set.mass,
         'visual_id': model_set.visual_id,
@@ -54,12 +65,16 @@ def _arrays_of(model_set: ModelSet) -> dict[str, np.ndarray]:
         'outcome_states': model_set.outcome_states,
         'outcome_probs': model_set.outcome_probs,
     }
+    if getattr(model_set, 'outcome_counts', None) is not None:
+        arrays['outcome_counts'] = np.asarray(model_set.outcome_counts, dtype=np.float64)
+    return arrays
 
 
 def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
-    """SHA-256 over (name, dtype, shape, bytes) of each array in ARRAY_SPECS order."""
+    """SHA-256 over (name, dtype, shape, bytes) of each array in ARRAY_SPECS order, then of
+    each OPTIONAL_ARRAY_SPECS array present in `arrays`."""
     digest = hashlib.sha256()
-    for name in ARRAY_SPECS:
+    for name in list(ARRAY_SPECS) + [n for n in OPTIONAL_ARRAY_SPECS if n in arrays]:
         arr = np.ascontiguousarray(arrays[name])
         digest.update(f'{name}|{arr.dtype.str}|{arr.shape}|'.encode())
         digest.update(arr.tobytes())
@@ -67,8 +82,10 @@ def arrays_sha256(arrays: dict[str, np.ndarray]) -> str:
 
 
 def fingerprint(model_set: ModelSet) -> str:
-    """sha256 identifying a model set's content (the same as stored in its file header)."""
-    return arrays_sha256(_arrays_of(model_set))
+    """sha256 identifying a model set's content: its version-1 arrays (for a hand-written
+    set the same as stored in its file header; learned counts are not part of it)."""
+    arrays = _arrays_of(model_set)
+    return arrays_sha256({name: arrays[name] for name in ARRAY_SPECS})
 
 
 def make_header(model_set: ModelSet, arrays: dict[str, np.ndarray]) -> dict:
@@ -84,17 +101,27 @@ def make_header(model_set: ModelSet, arrays: dict[str, np.ndarray]) -> dict:
         'feature_sigma': model_set.feature_sigma,
         'transition_params': dataclasses.asdict(model_set.transition_params),
         'observation_params': dataclasses.asdict(model_set.observation_params),
+        'learning': getattr(model_set, 'learning', None),
         'arrays': {name: {'dtype': arr.dtype.str, 'shape': list(arr.shape)}
                    for name, arr in arrays.items()},
         'sha256': arrays_sha256(arrays),
     }
 
 
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
 def write_npz(path, header: dict, arrays: dict[str, np.ndarray]):
     """Write header + arrays atomically (temp file, then rename)."""
     path = os.fspath(path)
     tmp = f'{path}.tmp{os.getpid()}'
-    members = {'header': np.frombuffer(json.dumps(header, sort_keys=True).encode(), np.uint8)}
+    text = json.dumps(header, sort_keys=True, default=_json_default)
+    members = {'header': np.frombuffer(text.encode(), np.uint8)}
     members.update(arrays)
     try:
         with open(tmp, 'wb') as fh:
@@ -159,7 +186,12 @@ def _check_arrays(path: str, header: dict, members: dict) -> dict[str, np.ndarra
         raise ModelFileError(f'{path}: header counts are not integers') from None
     if dims['N'] != dims['M'] * STATES_PER_MODEL:
         raise ModelFileError(f"{path}: num_nodes {dims['N']} != 48 * num_models {dims['M']}")
-    for name, (dtype, template) in ARRAY_SPECS.items():
+    specs = dict(ARRAY_SPECS)
+    if header['version'] >= 2:
+        listed = header.get('arrays') or {}
+        specs.update({name: spec for name, spec in OPTIONAL_ARRAY_SPECS.items()
+                      if name in members or name in listed})
+    for name, (dtype, template) in specs.items():
         if name not in members:
             raise ModelFileError(f"{path}: missing array '{name}'")
         arr = members[name]
@@ -197,6 +229,9 @@ def _check_ranges(path: str, n_tags: int, arrays: dict[str, np.ndarray]):
     if not np.isfinite(probs).all() or probs.min() < 0 \
             or not np.allclose(probs.sum(axis=3), 1.0, atol=1e-9):
         raise ModelFileError(f'{path}: outcome_probs are not distributions (>= 0, sum 1)')
+    counts = arrays.get('outcome_counts')
+    if counts is not None and (not np.isfinite(counts).all() or counts.min() < 0):
+        raise ModelFileError(f'{path}: outcome_counts must be finite and >= 0')
 
 
 def load(path) -> ModelSet:
@@ -216,7 +251,8 @@ def load(path) -> ModelSet:
             cube_size=float(header['cube_size']), feature_sigma=float(header['feature_sigma']),
             transition_params=TransitionParams(**header['transition_params']),
             observation_params=ObservationParams(**header['observation_params']),
-            outcome_tables=(arrays['outcome_states'], arrays['outcome_probs']))
+            outcome_tables=(arrays['outcome_states'], arrays['outcome_probs']),
+            outcome_counts=arrays.get('outcome_counts'), learning=header.get('learning'))
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f'{path}: invalid model set ({exc})') from None
     for name in ('visual_id', 'node_aspect', 'aspects'):

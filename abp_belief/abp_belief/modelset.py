@@ -131,7 +131,7 @@ class ModelSet:
                  feature_sigma: float = 0.005,
                  transition_params: TransitionParams | None = None,
                  observation_params: ObservationParams | None = None,
-                 outcome_tables=None):
+                 outcome_tables=None, outcome_counts=None, learning: dict | None = None):
         self.n_tags = cube.check_n_tags(n_tags)
         faces = np.array(faces, dtype=np.int64, copy=True)
         mass = np.array(mass, dtype=np.int64, copy=True).reshape(-1)
@@ -183,6 +183,8 @@ class ModelSet:
         self._build_aspects()
         self.observation = ObservationModel(self.aspects, self.n_tags, self.observation_params)
         self._set_outcome_tables(outcome_tables)
+        self._set_outcome_counts(outcome_counts)
+        self.learning = dict(learning) if learning else None
         self._build_transitions()
 
     # -- construction -----------------------------------------------------------------------
@@ -230,6 +232,19 @@ class ModelSet:
             probs = probs.astype(np.float64)
         self.outcome_states = states
         self.outcome_probs = probs
+
+    def _set_outcome_counts(self, outcome_counts):
+        # Learned tables: the (weighted) experience behind each edge; None = hand-written.
+        if outcome_counts is None:
+            self.outcome_counts = None
+            return
+        counts = np.asarray(outcome_counts, dtype=np.float64)
+        if counts.shape != self.outcome_states.shape:
+            raise ValueError(f'outcome_counts must have the shape of outcome_states '
+                             f'{self.outcome_states.shape}, got {counts.shape}')
+        if not np.isfinite(counts).all() or counts.min() < 0:
+            raise ValueError('outcome_counts must be finite and >= 0')
+        self.outcome_counts = counts
 
     def _build_transitions(self):
         node_model = np.repeat(np.arange(self.num_models, dtype=np.int64), STATES_PER_MODEL)
@@ -317,7 +332,8 @@ class ModelSet:
                         feature_sigma=self.feature_sigma,
                         transition_params=self.transition_params,
                         observation_params=self.observation_params,
-                        outcome_tables=(self.outcome_states, self.outcome_probs))
+                        outcome_tables=(self.outcome_states, self.outcome_probs),
+                        outcome_counts=self.outcome_counts, learning=self.learning)
 
     def __repr__(self) -> str:
         return (f'ModelSet(n_tags={self.n_tags}, models={self.num_models}, '

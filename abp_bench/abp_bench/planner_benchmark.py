@@ -5,6 +5,13 @@
 
 Prints a Markdown table laid out like Table II (plus accuracy, Table IV, and
 the per-decision planning latency) with the published figures side by side.
+
+Model error (issue 13): ``--world-models FILE`` draws the true object's outcomes from
+FILE's transition tables (e.g. the MuJoCo survey's, `learn_atg --alpha 0`), while the
+belief and the planner use ``--belief-models FILE`` (e.g. a learned set) or, by default,
+the hand-written tables. Only the tables are taken from the files (they are per mass
+variant, docs/MODEL.md); the models (|M|, seed) and the observation model stay those of
+``--models``.
 """
 
 from __future__ import annotations
@@ -52,6 +59,17 @@ def build_model_set(label: str, seed: int):
     return population.random_visual_subset(int(label), seed=seed)
 
 
+def with_model_tables(model_set, path: str | None):
+    """`model_set`'s models with the transition tables of the model file `path` (None:
+    unchanged)."""
+    if not path:
+        return model_set
+    from abp_belief import model_file
+    from abp_belief.atg_learning import with_tables
+
+    return with_tables(model_set, model_file.load(path))
+
+
 # One worker process keeps its model sets and belief filters between tasks.
 _WORKER: dict = {}
 
@@ -60,11 +78,13 @@ def _worker_trial(task):
     label, planner_name, trial, seed, options = task
     from abp_belief.filter import BeliefFilter
 
-    key = (label, seed)
+    key = (label, seed, options.get('belief_models'), options.get('world_models'))
     if key not in _WORKER:
-        ms = build_model_set(label, seed)
-        _WORKER[key] = (ms, BeliefFilter(ms), {})
-    ms, bf, rules = _WORKER[key]
+        ms = with_model_tables(build_model_set(label, seed), options.get('belief_models'))
+        # The world: the same models and observation model, its own transition tables.
+        world = with_model_tables(ms, options.get('world_models'))
+        _WORKER[key] = (ms, BeliefFilter(ms), {}, world)
+    ms, bf, rules, world = _WORKER[key]
     rule_key = (options.get('stop', 'error'), options.get('target_error', DEFAULT_TARGET_ERROR),
                 options.get('stop_posterior', STOP_POSTERIOR),
                 options.get('max_actions', MAX_ACTIONS), options.get('fault_margin', False))
@@ -79,7 +99,7 @@ def _worker_trial(task):
     # depend on how trials are spread over workers.
     planner = make_planner(planner_name, ms, seed=seed * 1_000_003 + trial, **options)
     result = run_trial(
-        ms,
+        world,  # outcomes and observations of the true object; planner and filter use ms
         planner,
         truth_rng,
         noise_rng,
@@ -324,6 +344,13 @@ def parse_args(argv):
     p.add_argument('--tie-tolerance', type=float, default=None,
                    help="expected gains closer than this (bits) are ties, resolved towards the "
                    "shorter action (default: the planner's, 1e-3)")
+    p.add_argument('--world-models', metavar='FILE',
+                   help="draw the true object's outcomes from this model file's transition "
+                   'tables (e.g. learn_atg --alpha 0 from the MuJoCo survey); default: the '
+                   "belief's own tables")
+    p.add_argument('--belief-models', metavar='FILE',
+                   help='transition tables of the belief and the planner (e.g. a learn_atg '
+                   'file); default: the hand-written ones')
     p.add_argument('--jobs', type=int, default=1, help='worker processes')
     p.add_argument('--json', help='write summaries and every trial here')
     p.add_argument('--plot', help='write the Fig. 3-style belief plot (PNG) here')
@@ -340,6 +367,13 @@ def parse_args(argv):
         p.error('--stop-curve needs --stop fixed (trajectories of all --max-actions actions)')
     if args.planning_budget_s is not None and not args.planning_budget_s > 0:
         p.error('--planning-budget-s must be > 0')
+    for path in (args.world_models, args.belief_models):
+        if path:
+            from abp_belief import model_file
+            try:
+                model_file.load(path)  # fail here, not in a worker
+            except model_file.ModelFileError as exc:
+                p.error(str(exc))
     return args
 
 
@@ -354,6 +388,8 @@ def main(argv=None) -> int:
         'fault_margin': args.fault_margin,
         'tie_tolerance': args.tie_tolerance,
         'planning_budget_s': args.planning_budget_s,
+        'belief_models': args.belief_models,
+        'world_models': args.world_models,
     }
     tasks = [
         (label, name, trial, args.seed, options)
@@ -385,7 +421,8 @@ def main(argv=None) -> int:
     print(f"\n({len(tasks)} trials in {time.perf_counter() - start:.1f} s wall, seed {args.seed}, "
           f"alpha {args.alpha}, stop {args.stop}, target error {args.target_error:g}"
           f"{' with fault margin' if args.fault_margin else ''}, "
-          f"planning budget {args.planning_budget_s} s)")
+          f"planning budget {args.planning_budget_s} s; tables: belief "
+          f"{args.belief_models or 'hand-written'}, world {args.world_models or 'same'})")
     curves = {}
     if args.stop_curve:
         ratio = fault_likelihood_ratio()

@@ -1,0 +1,129 @@
+"""`ros2 run abp_belief learn_atg`: learn ATG transition tables from experience and write a
+model-set file that belief, planner, aspect matcher and sim bridge load through the
+`model_file` parameter (`scripts/start_graph.sh --models FILE`). Science: `atg_learning`.
+
+Examples:
+  learn_atg --survey bench_out/survey/survey.json --out learned_robot.npz
+  learn_atg --survey bench_out/survey/survey.json --set full --out learned_full.npz \\
+      --report learned_vs_hand.md
+  learn_atg --survey survey.json --alpha 0 --out survey_table.npz     # empirical (a world)
+  learn_atg --survey survey.json --trials-per-class 5 --out learned_n5.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+
+from . import atg_learning, model_file, population
+
+SETS = ('robot', 'full', 'random', 'visual')
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog='learn_atg', formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__,
+        description='Learn p(next state | action, mass variant, state) from experience with a '
+        'Dirichlet prior and write a versioned, checksummed model-set file.')
+    p.add_argument('--survey', required=True, metavar='JSON',
+                   help='outcome_survey JSON (bench_out/survey/survey.json)')
+    p.add_argument('--out', metavar='FILE', help='write the learned model set here (.npz)')
+    p.add_argument('--set', choices=SETS, default='robot', dest='which',
+                   help='population whose tables are replaced (default robot)')
+    p.add_argument('--size', type=int, default=30, help='visual cubes for --set random')
+    p.add_argument('--seed', type=int, default=0, help='seed for --set random/robot')
+    p.add_argument('--tags', type=int, default=7, help='tag-set size')
+    p.add_argument('--population', metavar='FILE',
+                   help='take the models from this model file instead of --set')
+    p.add_argument('--alpha', type=float, default=atg_learning.DEFAULT_ALPHA,
+                   help='Dirichlet concentration in pseudo-trials (0 = empirical; default '
+                   f'{atg_learning.DEFAULT_ALPHA:g})')
+    p.add_argument('--prior', choices=atg_learning.PRIORS, default='table',
+                   help="prior mean: 'table' = hand-written table + epsilon spread over the "
+                   "neighbourhood (default); 'uniform' = uniform over neighbourhood + table "
+                   'support')
+    p.add_argument('--epsilon', type=float, default=atg_learning.DEFAULT_EPSILON,
+                   help='prior mass spread over the neighbourhood (prior table)')
+    p.add_argument('--neighbourhood', choices=atg_learning.NEIGHBOURHOODS,
+                   default=atg_learning.DEFAULT_NEIGHBOURHOOD,
+                   help='outcomes kept possible although never seen (manual actions)')
+    p.add_argument('--no-pool', action='store_true',
+                   help='do not pool the symmetry classes (each transition counts at its '
+                   'own cell only)')
+    p.add_argument('--trials-per-class', type=int, default=None, metavar='N',
+                   help='use only N trials of each survey class (learning curves)')
+    p.add_argument('--subsample-seed', type=int, default=None,
+                   help='draw the N trials at random with this seed (default: the first N)')
+    p.add_argument('--report', metavar='MD', help='write learned vs hand-written (Markdown)')
+    p.add_argument('--json', action='store_true', help='print a JSON summary')
+    return p
+
+
+def _population(args):
+    if args.population:
+        return model_file.load(args.population)
+    if args.which == 'full':
+        return population.full_set(args.tags)
+    if args.which == 'visual':
+        return population.visual_set(args.tags)
+    if args.which == 'random':
+        return population.random_visual_subset(args.size, n_tags=args.tags, seed=args.seed)
+    return population.robot_set(seed=args.seed, n_tags=args.tags)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    t0 = time.perf_counter()
+    try:
+        experience = atg_learning.experience_from_survey(
+            args.survey, args.trials_per_class, args.subsample_seed)
+        learned = atg_learning.learn(experience, alpha=args.alpha, prior=args.prior,
+                                     epsilon=args.epsilon,
+                                     neighbourhood_kind=args.neighbourhood,
+                                     pool=not args.no_pool)
+        t_learn = time.perf_counter() - t0
+        models = atg_learning.with_tables(_population(args), learned)
+    except (ValueError, model_file.ModelFileError) as exc:
+        print(f'{parser.prog}: error: {exc}', file=sys.stderr)
+        return 2
+    hand = atg_learning.hand_table()
+    tv = atg_learning.total_variation(learned.probs, hand)
+    try:
+        if args.out:
+            model_file.save(models, args.out)
+        if args.report:
+            with open(args.report, 'w') as stream:
+                stream.write(atg_learning.comparison_markdown(learned, hand))
+    except OSError as exc:
+        print(f'{parser.prog}: error: cannot write: {exc}', file=sys.stderr)
+        return 1
+    trials = learned.trials
+    summary = dict(
+        transitions=len(experience), models=models.num_models,
+        outcomes_per_cell_max=int(models.outcome_states.shape[3]),
+        trials_per_cell=dict(min=float(trials.min()), max=float(trials.max())),
+        cells_tv_over_0_1=int((tv > atg_learning.TV_HIGHLIGHT).sum()), cells=int(tv.size),
+        tv_mean=round(float(tv.mean()), 4), learn_s=round(t_learn, 3),
+        total_s=round(time.perf_counter() - t0, 3), out=args.out, report=args.report)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"learn_atg: {summary['transitions']} transitions -> {models.num_models} models, "
+              f"<= {summary['outcomes_per_cell_max']} outcomes per cell, "
+              f"{summary['cells_tv_over_0_1']}/{summary['cells']} cells differ from the "
+              f'hand-written table by TV > 0.1 (mean TV {np.round(tv.mean(), 3)}); '
+              f"learned in {summary['learn_s']} s, total {summary['total_s']} s"
+              + (f'; wrote {args.out}' if args.out else ''))
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

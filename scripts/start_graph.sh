@@ -12,7 +12,7 @@
 # Options:
 #   --robot              run on the robot: no sim bridge, no sim time
 #   --world W            sim world: mujoco (physics, MuJoCo camera) | rules (contact rules,
-#                        flat renderer; fast)                            (default rules)
+#                        flat renderer; fast)                            (default mujoco)
 #   --object N           hidden cube in sim: index into the model set (default: seeded random)
 #   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
 #   --planner MODE       random | abp | abp2 | abp3 | cost                   (default cost)
@@ -30,7 +30,7 @@ set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
-speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=rules; build=1
+speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 usage() { sed -n '2,28p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do

@@ -7,6 +7,8 @@ to their uniform sibling, so recognising them proves that the planner chose the
 manual action that separates them and that the sim's physics, the skills and the
 perception agree. The uniform cube's episode runs the graph under a namespace
 (`--namespace robot1`: every node, topic, service and action under /robot1).
+Each case names its world: `rules` (contact rules, flat renderer: fast) for the twins,
+`mujoco` (physics and MuJoCo camera, start_graph.sh's default) for one uniform cube.
 """
 
 import json
@@ -40,16 +42,18 @@ def twin_with_mass(models, mass_name):
     return next(i for i, name in enumerate(models.names) if name.endswith('/' + mass_name))
 
 
-@pytest.mark.parametrize('mass, namespace', [('u', 'robot1'), ('m+z', ''), ('m+y', '')])
-def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, mass, namespace):
+@pytest.mark.parametrize('world, mass, namespace', [
+    ('rules', 'u', 'robot1'), ('rules', 'm+z', ''), ('rules', 'm+y', ''), ('mujoco', 'u', '')])
+def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, world, mass, namespace):
     models = robot_set(seed=SEED)
     if mass == 'u':
         index = next(i for i in range(models.num_models) if models.mass[i] == 0)
     else:
         index = twin_with_mass(models, mass)
-    code, result, trace = run_episode(tmp_path, index,
-                                      ('--namespace', namespace) if namespace else ())
+    code, result, trace = run_episode(
+        tmp_path, index, ('--world', world, *(('--namespace', namespace) if namespace else ())))
     assert code == 0, trace
+    assert f'sim ({world} world)' in trace
     if namespace:
         assert f'graph under /{namespace}' in trace
         planner_log = (tmp_path / f'logs-{index}' / 'planner.log').read_text()

@@ -1,7 +1,7 @@
 """`graph_benchmark`: recognition episodes through the real graph in simulation.
 
-    graph_benchmark --episodes 20 [--world rules|mujoco] [--faults] [--models robot]
-                    [--planner abp] [--seed S] [--json FILE] [--no-build]
+    graph_benchmark --episodes 20 [--world mujoco|rules] [--faults] [--models robot]
+                    [--planner cost] [--seed S] [--json FILE] [--no-build]
 
 Each episode is one `scripts/start_graph.sh` run (every node its own process,
 over DDS) with a seeded hidden cube from the model set; the result is compared
@@ -112,12 +112,12 @@ class LatencyProbe:
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='graph_benchmark', description=__doc__.split('\n\n')[0])
     parser.add_argument('--episodes', type=int, default=20)
-    parser.add_argument('--world', choices=('mujoco', 'rules'), default='rules',
-                        help='the sim bridge world (default rules)')
+    parser.add_argument('--world', choices=('mujoco', 'rules'), default='mujoco',
+                        help='the sim bridge world (default mujoco, as start_graph.sh)')
     parser.add_argument('--no-build', action='store_true',
                         help='do not run scripts/bootstrap.sh before each episode')
     parser.add_argument('--models', default='robot', help='as start_graph.sh --models')
-    parser.add_argument('--planner', default='abp')
+    parser.add_argument('--planner', default='cost', help='as start_graph.sh --planner')
     parser.add_argument('--seed', type=int, default=0, help='model-set seed')
     parser.add_argument('--faults', action='store_true')
     parser.add_argument('--speedup', type=float, default=10.0)
@@ -130,6 +130,8 @@ def parse_args(argv):
 
 
 def model_count(models, seed):
+    if os.path.isfile(models):  # a model file, as start_graph.sh --models path/to/models.npz
+        return model_set_from_config(model_file=models).num_models
     if models.startswith('random:'):
         return model_set_from_config('random', int(models.split(':')[1]), seed=seed).num_models
     return model_set_from_config(models, seed=seed).num_models

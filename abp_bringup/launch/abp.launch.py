@@ -2,7 +2,7 @@
 is not installable from PyPI; scripts/start_graph.sh is the tested equivalent and
 starts the same nodes with the same parameters file).
 
-    ros2 launch abp_bringup abp.launch.py sim:=true world:=rules models:=robot planner:=cost \
+    ros2 launch abp_bringup abp.launch.py sim:=true world:=mujoco models:=robot planner:=cost \
         seed:=0 namespace:=robot1
 
 `world` chooses the sim bridge's world: mujoco (MuJoCo physics and camera) or rules (the
@@ -36,7 +36,7 @@ def generate_launch_description():
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
-        DeclareLaunchArgument('world', default_value='rules',
+        DeclareLaunchArgument('world', default_value='mujoco',
                               description='sim world: mujoco or rules',
                               choices=['mujoco', 'rules']),
         DeclareLaunchArgument('models', default_value='robot',

@@ -39,7 +39,7 @@ WORLDS = ('rules', 'mujoco')
 MUJOCO_ONLY = ' (world mujoco only)'
 
 PARAMETERS = (
-    ParamSpec('world', STRING, 'rules', 'Which world: mujoco = MuJoCo physics and rendering '
+    ParamSpec('world', STRING, 'mujoco', 'Which world: mujoco = MuJoCo physics and rendering '
               '(outcomes from mass, friction and contacts); rules = the contact rules of '
               'docs/SIM_BRIDGE.md and the flat renderer (fast, for tests).', choices=WORLDS,
               read_only=True),

@@ -9,6 +9,8 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
+        # The robot set's ATGs learned from the MuJoCo outcome survey (docs/BENCHMARKS.md).
+        ('share/' + PACKAGE + '/models', ['models/learned_robot_mujoco.npz']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

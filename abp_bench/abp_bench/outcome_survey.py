@@ -75,6 +75,7 @@ from abp_belief.cube import (
     STATES_PER_MODEL,
     apply_rotation,
 )
+from abp_description.frames import rot_z_deg
 
 NOMINAL_CENTRE = (0.40, 0.0, 0.05)     # m, base_link: the skills' plan and the cube's mean
 DIFF_THRESHOLD = 0.10                  # a flagged cell differs by more than this anywhere
@@ -278,15 +279,10 @@ def rotation_name(q):
     if '(' not in name or ',' not in name:
         return name
     for k in (0, 1, -1, 2, -2, 3, -3, 4):
-        rest = _axis_angle_name(_rot_z_deg(-45.0 * k) @ np.asarray(q, dtype=float))
+        rest = _axis_angle_name(rot_z_deg(-45.0 * k) @ np.asarray(q, dtype=float))
         if ',' not in rest:
             return f'{rest} Rz{45 * k:+d}' if k != 4 else f'{rest} Rz180'
     return name
-
-
-def _rot_z_deg(deg):
-    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 def _axis_angle_name(q):

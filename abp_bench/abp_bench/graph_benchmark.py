@@ -176,16 +176,29 @@ def run_episode(args, index, workdir, params_file):
     return result
 
 
+def verdict(result):
+    """correct | WRONG (named the wrong object) | not identified (the goal aborted: the
+    planner stopped without an identification, and said why) | hung."""
+    if result['hung']:
+        return 'hung'
+    if result['correct']:
+        return 'correct'
+    return 'WRONG' if result.get('success') else 'not identified'
+
+
 def summarise(results, latencies, observation_latencies, args):
     n = len(results)
     correct = sum(r['correct'] for r in results)
+    verdicts = [verdict(r) for r in results]
     done = [r for r in results if 'actions' in r]
     lat = np.array(latencies) if latencies else np.array([np.nan])
     obs = np.array(observation_latencies) if observation_latencies else np.array([np.nan])
     rows = [
         ('episodes', f'{n}'),
         ('correct', f'{correct}/{n} ({100.0 * correct / n:.1f} %)'),
-        ('hung (no result within the timeout)', f"{sum(r['hung'] for r in results)}"),
+        ('wrong (succeeded on the wrong object)', f"{verdicts.count('WRONG')}"),
+        ('not identified (aborted with a reason)', f"{verdicts.count('not identified')}"),
+        ('hung (no result within the timeout)', f"{verdicts.count('hung')}"),
         ('mean actions', f"{statistics.mean(r['actions'] for r in done):.2f}" if done else '-'),
         ('mean sim time per episode (s)',
          f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else '-'),
@@ -226,8 +239,7 @@ def main(argv=None):
                 probe.new_episode()
                 result = run_episode(args, int(index), workdir, params_file)
                 results.append(result)
-                print(f"[{number}/{args.episodes}] object {index}: "
-                      f"{'correct' if result['correct'] else 'WRONG'} "
+                print(f'[{number}/{args.episodes}] object {index}: {verdict(result)} '
                       f"{result.get('object_id', '-')} (truth {result.get('ground_truth', '-')}) "
                       f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",
                       file=sys.stderr, flush=True)

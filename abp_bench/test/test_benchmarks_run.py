@@ -46,9 +46,17 @@ def test_sim_bridge_benchmark_in_process(capsys, one_cv_thread):
 
 def test_graph_benchmark_summary_table():
     args = graph_benchmark.parse_args(['--episodes', '2'])
-    results = [dict(correct=True, hung=False, actions=2, elapsed_s=40.0, wall_s=9.0),
+    results = [dict(correct=True, success=True, hung=False, actions=2, elapsed_s=40.0,
+                    wall_s=9.0),
+               dict(correct=False, success=True, hung=False, actions=4, elapsed_s=60.0,
+                    wall_s=12.0),
+               dict(correct=False, success=False, hung=False, actions=6, elapsed_s=80.0,
+                    wall_s=15.0),
                dict(correct=False, hung=True, wall_s=30.0)]
     table = graph_benchmark.summarise(results, [12.0, 14.0], [5.0], args)
-    assert '| correct | 1/2 (50.0 %) |' in table
-    assert '| mean actions | 2.00 |' in table
-    assert 'robot models, planner abp, without fault injection' in table
+    assert '| correct | 1/4 (25.0 %) |' in table
+    assert '| wrong (succeeded on the wrong object) | 1 |' in table
+    assert '| not identified (aborted with a reason) | 1 |' in table
+    assert '| hung (no result within the timeout) | 1 |' in table
+    assert '| mean actions | 4.00 |' in table
+    assert 'mujoco world, robot models, planner cost, without fault injection' in table

@@ -241,10 +241,31 @@ class SkillActionServers:
             stop = self._move(skill, goal_handle, started, phase.name, phase.trajectory,
                               lambda f, s=start, d=phase.duration: (s + f * d) / total)
             if stop:
-                return stop
+                return self._retreat(skill, goal_handle, cube_base, stop)
             done += phase.duration
         self._feedback(skill, goal_handle, plan.phases[-1].name, 1.0)
         return 'succeed', ''
+
+    def _retreat(self, skill, goal_handle, cube_base, stop):
+        """After a manual skill aborted with the arms out (a joint that did not arrive, a
+        timeout): bring them home, looking at the cube, so that they neither hold the cube
+        nor hide it from the camera (else every later action is refused for a stale cube
+        estimate). Not after a cancel: the caller wants the robot stopped. Returns `stop`,
+        its reason saying whether the arms came home."""
+        outcome, reason = stop
+        if outcome != 'abort' or not goal_handle.is_active:
+            return stop
+        node = self.node
+        q = node.state.latest_joints()
+        if q is None:
+            return stop
+        with node.plan_lock:
+            home = node.motion_planner.go_home(q, look=cube_base)
+        if home is None:
+            return stop
+        # A fresh timeout budget for the retreat: `stop` may itself be the skill timeout.
+        failed = self._move(skill, goal_handle, node.now(), 'recover', home, lambda f: 1.0)
+        return outcome, f'{reason}; arms {"not " if failed else ""}back home'
 
 
 __all__ = ['SKILL_TYPES', 'SkillActionServers']

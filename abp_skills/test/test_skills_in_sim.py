@@ -51,7 +51,8 @@ def sim_graph(ros_processes, rclpy_context):
     def start(mass_index):
         sim_time = ['-p', 'use_sim_time:=true']
         ros_processes.start([executable('abp_sim_bridge', 'sim_bridge'), '--ros-args',
-                             '-p', 'world:=rules', '-p', f'face_tags:={FACE_TAGS}', '-p', f'mass_index:={mass_index}',
+                             '-p', 'world:=rules', '-p', f'face_tags:={FACE_TAGS}',
+                             '-p', f'mass_index:={mass_index}',
                              '-p', 'speedup:=5.0',
                              # Body +x towards the robot: the initial state is (up 4, yaw 0).
                              '-p', 'cube_yaw:=3.141592653589793'])

@@ -307,6 +307,23 @@ def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     assert res.result.duration.sec >= 2
 
 
+def test_an_aborted_manual_skill_brings_the_arms_home(ros_processes, tester):
+    # A skill timeout shorter than the LIFT aborts it with the arms out; the server then
+    # brings them home (phase 'recover') so that they neither hold nor hide the cube.
+    start_robot(ros_processes)
+    start_server(ros_processes, 'skill_servers', timeout=1.5)
+    tester.cube_odom = (0.4, 0.0)
+    assert tester.spin(lambda: tester.odom is not None, 20)
+    assert tester.wait_until_feasibility('LIFT', lambda a: a[0])[0]
+    feedback = []
+    _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
+    res = tester.result(lift, 60)
+    assert res.status == GoalStatus.STATUS_ABORTED, res.result.reason
+    assert res.result.reason.startswith('timeout') and res.result.reason.endswith(
+        'arms back home'), res.result.reason
+    assert feedback and feedback[-1].phase == 'recover'
+
+
 @pytest.mark.parametrize('override, expected', [
     ('push_hand:=middle', 'push_hand'),
     ('timeout:=-3.0', 'timeout'),

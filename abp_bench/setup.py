@@ -26,6 +26,7 @@ setup(
             'render_benchmark = abp_bench.render_benchmark:main',
             'graph_benchmark = abp_bench.graph_benchmark:main',
             'outcome_survey = abp_bench.outcome_survey:main',
+            'mujoco_benchmark = abp_bench.mujoco_benchmark:main',
             'atg_learning_curve = abp_bench.atg_learning_curve:main',
         ],
     },

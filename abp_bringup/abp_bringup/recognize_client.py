@@ -72,6 +72,7 @@ class Tracer:
         self.belief = None
         self.ground_truth = None
         self.printed_steps = set()
+        self.printing = False  # beliefs from before our goal (latched, or another episode's)
         events = qos.reliable(TRACE_DEPTH)
         node.create_subscription(PlanStep, names.PLAN, self.on_plan, events)
         node.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
@@ -101,7 +102,7 @@ class Tracer:
 
     def on_belief(self, msg):
         # The same belief can come twice (topic and feedback): print each step once.
-        if msg.step in self.printed_steps:
+        if not self.printing or msg.step in self.printed_steps:
             return
         self.printed_steps.add(msg.step)
         self.belief = msg
@@ -138,7 +139,7 @@ def main(argv=None):
                               posterior_threshold=args.threshold,
                               stopping_rule=args.stopping_rule,
                               target_error=args.target_error)
-        tracer.printed_steps.clear()  # a latched belief of an earlier episode was printed
+        tracer.printing = True
         sent = client.send_goal_async(goal, feedback_callback=tracer.on_feedback)
         spin_until(node, sent.done, 30.0)
         handle = sent.result() if sent.done() else None

@@ -253,7 +253,7 @@ class MujocoWorld(CommandInputs):
         d = self.data
         d.qpos[self._qadr] = q0
         d.qpos[self._base_qadr] = robot_pose
-        self.q = q0.copy()
+        self.q = q0 - self._offsets
         self.qd = np.zeros(kin.nq)
         self._desired = q0.copy()
         d.ctrl[self._servo_act] = q0[self._servo_idx] + self._offsets[self._servo_idx]
@@ -348,9 +348,12 @@ class MujocoWorld(CommandInputs):
         measured = self._measured_twist()
         self.twist = (float(measured[0]), float(measured[1]))
         self.odometry_pose = se2_compose(self._odom_from_world, self.robot_pose())
-        # Joint states: servo joints from MuJoCo, wheels from the measured twist.
+        # Joint states: servo joints from MuJoCo, wheels from the measured twist. The set
+        # point offsets (joint_offsets, a drawn grasp opening) are calibration errors: the
+        # joint's own encoder is off by the same amount, so the robot reads its command
+        # back while the hand is elsewhere (otherwise every later skill aborts on arrival).
         q_prev = self.q
-        self.q = d.qpos[self._qadr].copy()
+        self.q = d.qpos[self._qadr] - self._offsets
         self.qd = d.qvel[self._vadr].copy()
         wheel_rates = np.array([measured[0] - measured[1] * self.wheel_track / 2,
                                 measured[0] + measured[1] * self.wheel_track / 2])

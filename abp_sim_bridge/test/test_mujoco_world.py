@@ -12,6 +12,7 @@ from abp_description.kinematics import RobotKinematics, look_at_world
 from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
 from abp_sim_bridge.mujoco_scene import CubeSpec
 from abp_sim_bridge.mujoco_world import (  # also sets MUJOCO_GL=egl by default
+    ARM_REACH,
     MujocoSettings,
     MujocoWorld,
     discrete_state,
@@ -117,3 +118,21 @@ def test_camera_image_shows_the_tags_the_state_predicts(kin):
     run(world, 0.1)
     assert np.array_equal(world.render(snap), img)
     assert world.render(encoding='mono8').shape == (480, 640)
+
+
+def test_a_grasp_opening_moves_the_hands_but_not_the_joint_readings(kin):
+    # A drawn grasp fault is a calibration error: the shoulder goes further out while its
+    # encoder reads the command back, so the skills do not abort on arrival (they did, and
+    # then every later skill aborted too) and the grasp really is wider.
+    world = make_world(kin)
+    run(world, 0.5)
+    roll = kin.joint_index('left_shoulder_roll_joint')
+    before_q, before_hands = world.q.copy(), world.hand_positions()
+    world.set_grasp_opening(0.05)
+    run(world, 1.0)
+    assert world.q[roll] == pytest.approx(before_q[roll], abs=0.01)
+    physical = world.data.qpos[world._qadr[roll]]
+    assert physical - world.q[roll] == pytest.approx(0.05 / ARM_REACH, rel=0.05)
+    def hand_gap(hands):
+        return np.linalg.norm(hands['left'] - hands['right'])
+    assert hand_gap(world.hand_positions()) > hand_gap(before_hands) + 0.02

@@ -17,7 +17,7 @@ PACKAGES = sorted(p.parent for p in REPO.glob('abp_*/package.xml'))
 ROSDEP_KEY = {
     'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'cv2': 'python3-opencv',
     'yaml': 'python3-yaml', 'matplotlib': 'python3-matplotlib', 'tqdm': 'python3-tqdm',
-    'pytest': 'python3-pytest', 'mujoco': 'python3-mujoco',
+    'pytest': 'python3-pytest', 'mujoco': 'python3-mujoco', 'OpenGL': 'python3-opengl',
 }
 NOT_DEPENDENCIES = {'setuptools'} | set(sys.stdlib_module_names)
 # What a robot install must never need (issue 11): the simulator and benchmark tooling.

@@ -8,6 +8,13 @@ Examples:
       --report learned_vs_hand.md
   learn_atg --survey survey.json --alpha 0 --out survey_table.npz     # empirical (a world)
   learn_atg --survey survey.json --trials-per-class 5 --out learned_n5.npz
+  learn_atg --bags labels.yaml --seed 1 --out learned_bags.npz    # recorded episodes
+
+A labels file (--bags) names the object each bag holds (YAML ``bag: object`` or a list of
+``{bag, object}``; CSV rows ``bag,object``); paths are relative to the file. The states
+before and after each executed action are inferred from the bag's aspect observations
+(atg_from_bags); objects are looked up in the model set (--set/--seed/--population) or
+parsed from their names (``c0-3-2-4-6-5/m+z``).
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ import time
 
 import numpy as np
 
-from . import atg_learning, model_file, population
+from . import atg_from_bags, atg_learning, model_file, population
 
 SETS = ('robot', 'full', 'random', 'visual')
 
@@ -29,8 +36,12 @@ def build_parser() -> argparse.ArgumentParser:
         prog='learn_atg', formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__,
         description='Learn p(next state | action, mass variant, state) from experience with a '
         'Dirichlet prior and write a versioned, checksummed model-set file.')
-    p.add_argument('--survey', required=True, metavar='JSON',
-                   help='outcome_survey JSON (bench_out/survey/survey.json)')
+    source = p.add_mutually_exclusive_group(required=True)
+    source.add_argument('--survey', metavar='JSON',
+                        help='outcome_survey JSON (bench_out/survey/survey.json)')
+    source.add_argument('--bags', metavar='LABELS',
+                        help='labels file of recorded episodes: bag -> object name (YAML or '
+                        'CSV)')
     p.add_argument('--out', metavar='FILE', help='write the learned model set here (.npz)')
     p.add_argument('--set', choices=SETS, default='robot', dest='which',
                    help='population whose tables are replaced (default robot)')
@@ -58,6 +69,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help='use only N trials of each survey class (learning curves)')
     p.add_argument('--subsample-seed', type=int, default=None,
                    help='draw the N trials at random with this seed (default: the first N)')
+    p.add_argument('--broad', type=float, default=atg_from_bags.DEFAULT_BROAD,
+                   help='--bags: weight of the broad neighbourhood mixed into the current '
+                   f'table when inferring states (default {atg_from_bags.DEFAULT_BROAD:g})')
+    p.add_argument('--views-per-segment', type=float,
+                   default=atg_from_bags.DEFAULT_VIEWS_PER_SEGMENT,
+                   help="--bags: at most this many observations' worth of evidence per "
+                   'state between two actions (default '
+                   f'{atg_from_bags.DEFAULT_VIEWS_PER_SEGMENT:g})')
     p.add_argument('--report', metavar='MD', help='write learned vs hand-written (Markdown)')
     p.add_argument('--json', action='store_true', help='print a JSON summary')
     return p
@@ -81,16 +100,29 @@ def main(argv=None) -> int:
         args = parser.parse_args(argv)
     except SystemExit as exc:
         return int(exc.code or 0)
+    if args.bags and (args.trials_per_class is not None or args.subsample_seed is not None):
+        print(f'{parser.prog}: error: --trials-per-class/--subsample-seed apply to --survey',
+              file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
+    truth = None
     try:
-        experience = atg_learning.experience_from_survey(
-            args.survey, args.trials_per_class, args.subsample_seed)
+        base = _population(args) if args.bags else None    # objects are looked up in it
+        if args.bags:
+            if not 0.0 <= args.broad <= 1.0 or not args.views_per_segment > 0:
+                raise ValueError('--broad must be in [0, 1] and --views-per-segment > 0')
+            experience, inferences = atg_from_bags.experience_from_bags(
+                args.bags, base, broad=args.broad, views_per_segment=args.views_per_segment)
+            truth = atg_from_bags.truth_agreement(inferences)
+        else:
+            experience = atg_learning.experience_from_survey(
+                args.survey, args.trials_per_class, args.subsample_seed)
         learned = atg_learning.learn(experience, alpha=args.alpha, prior=args.prior,
                                      epsilon=args.epsilon,
                                      neighbourhood_kind=args.neighbourhood,
                                      pool=not args.no_pool)
         t_learn = time.perf_counter() - t0
-        models = atg_learning.with_tables(_population(args), learned)
+        models = atg_learning.with_tables(base or _population(args), learned)
     except (ValueError, model_file.ModelFileError) as exc:
         print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2
@@ -113,6 +145,11 @@ def main(argv=None) -> int:
         cells_tv_over_0_1=int((tv > atg_learning.TV_HIGHLIGHT).sum()), cells=int(tv.size),
         tv_mean=round(float(tv.mean()), 4), learn_s=round(t_learn, 3),
         total_s=round(time.perf_counter() - t0, 3), out=args.out, report=args.report)
+    if args.bags:
+        summary.update(bags=experience.source['bags'], actions=experience.source['actions'],
+                       failed_actions=experience.source['failed_actions'],
+                       read_infer_s=experience.source['read_infer_s'],
+                       ground_truth=truth)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -122,6 +159,17 @@ def main(argv=None) -> int:
               f'hand-written table by TV > 0.1 (mean TV {np.round(tv.mean(), 3)}); '
               f"learned in {summary['learn_s']} s, total {summary['total_s']} s"
               + (f'; wrote {args.out}' if args.out else ''))
+        if args.bags:
+            print(f"learn_atg: {summary['bags']} bags, {summary['actions']} executed actions "
+                  f"counted ({summary['failed_actions']} failed, not counted), read and "
+                  f"inferred in {summary['read_infer_s']} s")
+            if truth and truth['actions']:
+                print(f"learn_atg: ground truth in the bags: MAP (before, after) right for "
+                      f"{100 * truth['map_pair']:.0f} % of {truth['actions']} actions, mean "
+                      f"posterior on the true pair {truth['mass_on_true_pair']:.3f}")
+            if truth and truth['label_mismatch']:
+                print(f"learn_atg: warning: the ground-truth object differs from the label "
+                      f"in {', '.join(truth['label_mismatch'])}", file=sys.stderr)
     return 0
 
 

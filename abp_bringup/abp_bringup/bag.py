@@ -15,9 +15,8 @@ import pathlib
 
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from abp_common import names
+from abp_common import bag_types, names
 from abp_common.param_spec import BOOL, STRING, STRING_ARRAY, ParamSpec
 
 # The graph's topics (relative names) and types; images are large and recorded only
@@ -85,26 +84,12 @@ class BagError(Exception):
     """A bag cannot be written or read; the message says which and why."""
 
 
-def abp_msgs_dir():
-    """The installed abp_msgs share directory (ament index), or the source tree."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-        return pathlib.Path(get_package_share_directory('abp_msgs'))
-    except (ImportError, LookupError):
-        return pathlib.Path(__file__).resolve().parents[2] / 'abp_msgs'
-
-
 def typestore():
-    """Jazzy's standard types plus every abp_msgs message."""
-    store = get_typestore(Stores.ROS2_JAZZY)
-    types = {}
-    msg_dir = abp_msgs_dir() / 'msg'
-    for path in sorted(msg_dir.glob('*.msg')):
-        types.update(get_types_from_msg(path.read_text(), f'abp_msgs/msg/{path.stem}'))
-    if not types:
-        raise BagError(f'no abp_msgs message definitions found in {msg_dir}')
-    store.register(types)
-    return store
+    """Jazzy's standard types plus every abp_msgs message (abp_common.bag_types)."""
+    try:
+        return bag_types.typestore()
+    except FileNotFoundError as error:
+        raise BagError(str(error)) from None
 
 
 class BagWriter:

@@ -150,66 +150,180 @@ def publish_when_matched(tester, publisher, msg, timeout=10):
 
 # -- base, joints and clock ------------------------------------------------------------------
 
-# Closed-loop timing over DDS: on an overloaded machine the state streams can lag
-# the controllers; a real fault fails every rerun.
-@pytest.mark.flaky(reruns=2, reruns_delay=2)
-def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_factory):
-    speedup = 4.0
-    proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0)
-    t = tester_factory('clock', 'odom', 'joint_states')
-    assert t.spin_until(lambda: len(t.msgs['clock']) > 20, 30), 'no /clock'
-    # Simulation time against wall time, over ~2 s of wall time.
-    t.msgs['clock'].clear()
-    t.wall['clock'].clear()
-    t.spin_for(2.0)
-    clocks = [ns(m.clock) * 1e-9 for m in t.msgs['clock']]
-    walls = t.wall['clock']
-    ratio = (clocks[-1] - clocks[0]) / (walls[-1] - walls[0])
-    assert ratio == pytest.approx(speedup, rel=0.15), f'sim/wall = {ratio:.2f}'
-    assert np.all(np.diff(clocks) > 0), 'simulation time must increase'
-    assert np.allclose(np.diff(clocks), 1 / 50.0, atol=1e-6), 'one /clock per 50 Hz tick'
+def wrap_angle(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
 
+
+def moving_runs(odom):
+    """The runs of consecutive moving odometry messages received, as lists."""
+    runs, run = [], []
+    for m in odom:
+        if m.twist.twist.linear.x != 0.0 or m.twist.twist.angular.z != 0.0:
+            run.append(m)
+        elif run:
+            runs.append(run)
+            run = []
+    return runs + ([run] if run else [])
+
+
+def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_factory):
+    speedup, tick, cmd_vel_timeout = 4.0, 1 / 50.0, 0.5
+    tick_ns = round(tick * 1e9)
+    proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0)
+    # A node on /clock alone: the Python executor of a node that also takes /odom and
+    # /joint_states falls behind on a loaded machine, and its receipt times with it.
+    c = tester_factory('clock')
+    assert c.spin_until(lambda: len(c.msgs['clock']) > 20, 30), 'no /clock'
+
+    # Simulation time against wall time, over >= 3 s of wall time. The wall times are this
+    # node's receipt times, which lag the bridge's ticks by delays that vary on a loaded
+    # machine (a late first message alone would skew a two-point ratio): the rate is the
+    # median of the slopes between messages half the window apart, robust to bursts of
+    # late ones. The bridge never runs ahead of its speed-up, but lets simulation time run
+    # slower when the machine cannot keep up (sim_timing.Pacer, whose exact pacing
+    # test_sim_timing.py checks; 2.7x of 4x seen with two busy loops on two cores): the
+    # bounds tell the paced clock from an unpaced one (far faster) and from one that
+    # ignores the speed-up (1x).
+    c.msgs['clock'].clear()
+    c.wall['clock'].clear()
+    assert c.spin_until(lambda: len(c.wall['clock']) > 100
+                        and c.wall['clock'][-1] - c.wall['clock'][0] >= 3.0, 60)
+    clocks = np.array([ns(m.clock) for m in c.msgs['clock']])
+    walls = np.array(c.wall['clock'])
+    half = len(clocks) // 2
+    ratio = float(np.median((clocks[half:2 * half] - clocks[:half]) * 1e-9
+                            / (walls[half:2 * half] - walls[:half])))
+    assert 0.4 * speedup <= ratio <= 1.25 * speedup, f'sim/wall = {ratio:.2f}'
+    # One /clock per 50 Hz tick. The bridge's publishers keep the last 10 messages: a
+    # reader starved for longer loses some (a gap of whole ticks), never gets others.
+    steps = np.diff(clocks)
+    assert np.all(steps > 0), 'simulation time must increase'
+    assert np.all(steps % tick_ns == 0), 'one /clock per 50 Hz tick'
+    assert np.mean(steps == tick_ns) > 0.5, 'most /clock ticks must arrive'
+
+    t = tester_factory('clock', 'odom', 'joint_states')
+    assert t.spin_until(lambda: t.msgs['joint_states'] and t.msgs['odom'], 30)
     joints = t.last('joint_states')
     assert len(joints.name) == len(joints.position) == len(joints.velocity) == 13
     assert set(joints.name) == set(RobotKinematics().joint_names)
 
-    # Drive an arc: v = 0.2 m/s, w = 0.3 rad/s, commands every 0.2 s of sim time.
+    def sim_now():
+        return ns(t.last('clock').clock) * 1e-9
+
+    def still_since(sim_s, heading_from=None):
+        """The base stands still in the latest odometry, stamped >= `sim_s` (simulation
+        time); with `heading_from`, the heading has changed from it (the command arrived).
+        Poses, not message counts: a starved reader loses some odometry messages."""
+        if not t.msgs['odom']:
+            return False
+        last = t.msgs['odom'][-1]
+        if last.twist.twist.linear.x != 0.0 or last.twist.twist.angular.z != 0.0:
+            return False
+        if heading_from is not None and abs(yaw_of(last.pose.pose.orientation)
+                                            - heading_from) < 1e-9:
+            return False
+        return ns(last.header.stamp) * 1e-9 >= sim_s
+
+    def describe(sent):
+        """What the odometry shows, for a failure message."""
+        runs = [(ns(r[0].header.stamp) * 1e-9, ns(r[-1].header.stamp) * 1e-9, len(r))
+                for r in moving_runs(t.msgs['odom'])]
+        last = ns(t.msgs['odom'][-1].header.stamp) * 1e-9 if t.msgs['odom'] else None
+        return (f'last command sent at {sent:.2f} s, moving (from, to, messages): {runs}, '
+                f'last odometry at {last} s, /clock at {sim_now():.2f} s')
+
+    def on_the_arc(m, v, w):
+        """The odometry pose of `m` is on the arc of (v, w) from the origin, at the
+        heading it reached (yaw < pi here): the base followed the command exactly."""
+        p = m.pose.pose
+        yaw = yaw_of(p.orientation)
+        return (p.position.x == pytest.approx(v / w * np.sin(yaw), abs=1e-6)
+                and p.position.y == pytest.approx(v / w * (1 - np.cos(yaw)), abs=1e-6))
+
+    # Drive an arc: v = 0.2 m/s, w = 0.3 rad/s, a command every 0.2 s of simulation time
+    # (paced on /clock) for 6 s of it. On a loaded machine this node may publish late and
+    # the base stop between two commands: what is checked holds whatever the gaps.
+    v, w = 0.2, 0.3
     pub = t.node.create_publisher(Twist, '/cmd_vel', 10)
     cmd = Twist()
-    cmd.linear.x, cmd.angular.z = 0.2, 0.3
+    cmd.linear.x, cmd.angular.z = v, w
     assert t.spin_until(lambda: pub.get_subscription_count() > 0, 10)
     t.msgs['odom'].clear()
     t.msgs['joint_states'].clear()
-    end = time.monotonic() + 3.0 / speedup * 2  # ~6 s of simulation time
-    while time.monotonic() < end:
-        pub.publish(cmd)
-        t.spin_for(0.2 / speedup)
-    # No more commands: the base must stop within cmd_vel_timeout (0.5 s of sim time).
-    t.spin_for(1.5 / speedup + 0.5)
-    odom = t.msgs['odom']
-    moving = [m for m in odom if m.twist.twist.linear.x != 0.0]
-    assert moving, 'the base never moved'
-    assert all(m.twist.twist.linear.x == pytest.approx(0.2)
-               and m.twist.twist.angular.z == pytest.approx(0.3) for m in moving)
-    duration = (ns(moving[-1].header.stamp) - ns(moving[0].header.stamp)) * 1e-9 + 1 / 50.0
-    assert duration == pytest.approx(6.0, abs=1.0)
-    assert len(moving) == round(duration * 50), 'odometry messages were lost'
-    final = odom[-1]
-    assert final.twist.twist.linear.x == 0.0, 'the base did not stop after cmd_vel_timeout'
-    v, w = 0.2, 0.3
-    x = v / w * np.sin(w * duration)
-    y = v / w * (1 - np.cos(w * duration))
-    pose = final.pose.pose
-    assert pose.position.x == pytest.approx(x, abs=1e-6)
-    assert pose.position.y == pytest.approx(y, abs=1e-6)
-    assert yaw_of(pose.orientation) == pytest.approx(w * duration, abs=1e-6)
+    first_sent = next_cmd = sim_now()
+    deadline = time.monotonic() + 60
+    while sim_now() < first_sent + 6.0:
+        assert time.monotonic() < deadline, '/clock stopped'
+        if sim_now() >= next_cmd:
+            pub.publish(cmd)
+            last_sent, next_cmd = sim_now(), sim_now() + 0.2
+        t.executor.spin_once(timeout_sec=0.01)
+    # The last command arrived at or after `last_sent` (simulation time) and drives the
+    # base for cmd_vel_timeout from its receipt; then the base stops by itself.
+    assert t.spin_until(lambda: still_since(last_sent + cmd_vel_timeout + 2.0), 60), \
+        f'the base did not stop after cmd_vel_timeout: {describe(last_sent)}'
+    drive = moving_runs(t.msgs['odom'])
+    assert drive, 'the base never moved'
+    assert ns(drive[0][0].header.stamp) * 1e-9 >= first_sent + tick - 1e-6
+    heading = yaw_of(t.msgs['odom'][-1].pose.pose.orientation)
+
+    # One single command, a turn in place (w_p): the base turns for exactly
+    # cmd_vel_timeout of simulation time from its receipt, whenever that is, then stops
+    # by itself. The arc's position tells how far the drive turned (even if a late drive
+    # command arrives after the wait above), the rest of the heading is the pulse's.
+    w_p = 0.6
+    pulse = Twist()
+    pulse.angular.z = w_p
+    pulse_sent = sim_now()
+    n_before = len(t.msgs['odom'])
+
+    def turned():
+        """The first odometry after the pulse whose heading has changed, or None."""
+        return next((m for m in t.msgs['odom'][n_before:]
+                     if abs(yaw_of(m.pose.pose.orientation) - heading) > 1e-9), None)
+    pub.publish(pulse)
+    assert t.spin_until(lambda: turned() is not None, 60), \
+        f'the base did not move on a command: {describe(pulse_sent)}'
+    moved = ns(turned().header.stamp) * 1e-9   # at most cmd_vel_timeout after it started
+    assert t.spin_until(lambda: still_since(moved + cmd_vel_timeout + 1.0), 60), \
+        f'the base did not stop after cmd_vel_timeout: {describe(pulse_sent)}'
+    final = t.msgs['odom'][-1]
+    assert final.twist.twist.linear.x == 0.0 and final.twist.twist.angular.z == 0.0
     assert final.header.frame_id == 'odom' and final.child_frame_id == 'base_link'
+    fx, fy = final.pose.pose.position.x, final.pose.pose.position.y
+    radius = v / w
+    drive_heading = np.arctan2(fx / radius, 1 - fy / radius)   # on the arc: wrapped
+    pulse_turn = wrap_angle(yaw_of(final.pose.pose.orientation) - drive_heading)
+    assert pulse_turn == pytest.approx(w_p * cmd_vel_timeout, abs=1e-6), \
+        'a command drives the base for cmd_vel_timeout'
+
+    odom = t.msgs['odom']
+    stamps = np.array([ns(m.header.stamp) for m in odom])
+    assert np.all(np.diff(stamps) > 0) and np.all(np.diff(stamps) % tick_ns == 0)
+    moving = [m for run in moving_runs(odom) for m in run]
+    driving = [m for m in moving if m.twist.twist.linear.x != 0.0]
+    turning = [m for m in moving if m.twist.twist.linear.x == 0.0]
+    assert all(m.twist.twist.linear.x == pytest.approx(v)
+               and m.twist.twist.angular.z == pytest.approx(w) for m in driving)
+    assert all(m.twist.twist.angular.z == pytest.approx(w_p) for m in turning)
+    # Constant (v, w): whatever the gaps, every pose of the drive is on one arc from the
+    # origin (the turn in place comes after it).
+    assert all(on_the_arc(m, v, w) for m in driving)
+    # The drive's moving time: its heading over w (unwrapped: no fewer than the moving
+    # messages received; lost messages only hide some).
+    received = len(driving) * tick
+    turns = np.ceil((w * received - drive_heading - 1e-6) / (2 * np.pi))
+    duration = (drive_heading + 2 * np.pi * turns) / w
+    assert received - 1e-6 <= duration
     # The wheels turned as a diff drive: radius 0.1 m, track 0.34 m.
-    js = t.msgs['joint_states']
-    left, right = (js[-1].position[js[-1].name.index(n)] - js[0].position[js[0].name.index(n)]
+    # `joints` is from before the first command, the last joint state from after the stop.
+    js = t.msgs['joint_states'][-1]
+    assert ns(js.header.stamp) > ns(final.header.stamp) - 1_000_000_000
+    left, right = (js.position[js.name.index(n)] - joints.position[joints.name.index(n)]
                    for n in ('left_wheel_joint', 'right_wheel_joint'))
-    assert left == pytest.approx((v - w * 0.17) / 0.1 * duration, abs=1e-6)
-    assert right == pytest.approx((v + w * 0.17) / 0.1 * duration, abs=1e-6)
+    spin = w_p * cmd_vel_timeout * 0.17 / 0.1
+    assert left == pytest.approx((v - w * 0.17) / 0.1 * duration - spin, abs=1e-6)
+    assert right == pytest.approx((v + w * 0.17) / 0.1 * duration + spin, abs=1e-6)
     assert proc.poll() is None
 
 

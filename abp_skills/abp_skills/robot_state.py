@@ -48,6 +48,8 @@ class RobotState:
         self._q_time = None
         self._odom = None           # (x, y, yaw)
         self._odom_time = None
+        self._odom_twist = (0.0, 0.0)   # (v, w) the odometry reports
+        self._odom_count = 0            # odometry messages so far
         self._estimate = None       # (cube centre in odom (3,), receipt time)
 
     # -- writers (the node's subscriptions) ------------------------------------------------
@@ -56,10 +58,28 @@ class RobotState:
             self._q = self._q_from_mapping(positions, default=self._q)
             self._q_time = self._now()
 
-    def set_odom(self, pose):
+    def set_odom(self, pose, twist=(0.0, 0.0)):
         with self._lock:
             self._odom = np.asarray(pose, dtype=float).copy()
             self._odom_time = self._now()
+            self._odom_twist = (float(twist[0]), float(twist[1]))
+            self._odom_count += 1
+
+    def odom_count(self):
+        """How many odometry messages arrived so far (to wait for one after a command)."""
+        with self._lock:
+            return self._odom_count
+
+    def rest_pose_since(self, count, v_eps=0.01, w_eps=0.02):
+        """The pose of the latest odometry if it arrived after the first `count` messages
+        and reports the base at rest (|v| <= v_eps m/s, |w| <= w_eps rad/s), else None."""
+        with self._lock:
+            if self._odom_count <= count or self._odom is None:
+                return None
+            v, w = self._odom_twist
+            if abs(v) > v_eps or abs(w) > w_eps:
+                return None
+            return self._odom.copy()
 
     def set_cube_estimate(self, centre_in_base):
         """The cube centre seen now in base_link (kept in odom with the latest odometry)."""
@@ -79,10 +99,12 @@ class RobotState:
         while getattr(self, attribute) is None and self._monotonic() < deadline:
             self._sleep(0.02)
 
-    def joints(self, max_age_s, wait=True):
-        """The joint positions; Refused when none arrived or they are too old."""
+    def joints(self, max_age_s, wait=True, first_wait_s=None):
+        """The joint positions; Refused when none arrived or they are too old. `wait`:
+        when none arrived yet, wait up to `first_wait_s` wall seconds (default
+        `max_age_s`) for the first (discovery can be slow on a loaded machine)."""
         if wait:
-            self._wait_first('_q', max_age_s)
+            self._wait_first('_q', max_age_s if first_wait_s is None else first_wait_s)
         with self._lock:
             q, stamp = self._q, self._q_time
         if q is None:
@@ -92,11 +114,12 @@ class RobotState:
             raise Refused(f'refused: /joint_states is {age:.1f} s old')
         return q.copy()
 
-    def base_pose(self, max_age_s, required=True):
-        """The odometry pose (x, y, yaw); when missing or too old: Refused if `required`,
-        else None (a skill under way reads it without waiting)."""
+    def base_pose(self, max_age_s, required=True, first_wait_s=None):
+        """The odometry pose (x, y, yaw); when missing or too old: Refused if `required`
+        (after waiting up to `first_wait_s`, default `max_age_s`, wall seconds for a first
+        one), else None (a skill under way reads it without waiting)."""
         if required:
-            self._wait_first('_odom', max_age_s)
+            self._wait_first('_odom', max_age_s if first_wait_s is None else first_wait_s)
         with self._lock:
             pose, stamp = self._odom, self._odom_time
         if pose is None or self._now() - stamp > max_age_s:

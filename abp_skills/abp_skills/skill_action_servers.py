@@ -6,8 +6,14 @@ busy goal aborts with reason "rejected: busy: ..."), planned by the node's motio
 phase: base motions closed-loop on /odom (`base_motion.OrbitTracker`), arm phases sent as
 one trajectory to every controller and waited for until the joints arrive
 (`skill_checks.ArrivalCheck`). Cancelling stops the robot and ends the goal canceled; a
-timeout, lost odometry or joints that do not arrive abort it (and stop the robot).
+timeout, lost odometry or joints that do not arrive abort it (and stop the robot). Odometry
+that is late (older than `max_state_age` of node time, which at a high sim speed-up is a
+short wall time) first stops the base and pauses the drive until it is recent again;
+only when it stays late for `state_wait_timeout` wall seconds does the drive abort
+(`skill_checks.OdometryGap`).
 """
+
+import time
 
 import numpy as np
 import rclpy
@@ -23,6 +29,7 @@ from .robot_state import point_odom_to_base
 from .skill_checks import (
     ArrivalCheck,
     FeedbackThrottle,
+    OdometryGap,
     Refused,
     manual_goal_overrides,
     sleep_on_clock,
@@ -126,19 +133,37 @@ class SkillActionServers:
             settle_time=max(node.param('settle_timeout'), 0.5))
         t0 = node.now()
         feedback = FeedbackThrottle()
+        gap = OdometryGap(node.param('state_wait_timeout'))
+        held_at = None
         while True:
             stop = self._check_goal(goal_handle, started)
             if stop:
                 return stop
             pose = node.state.base_pose(node.param('max_state_age'), required=False)
-            if pose is None:
-                return 'abort', 'odometry lost: no recent /odom'
+            step = gap.update(pose is not None)
+            if step == 'abort':
+                node.commands.stop_base()
+                return 'abort', gap.reason()
+            if step == 'stop':   # late odometry: stand still, the plan paused, and wait
+                node.commands.stop_base()
+                held_at = node.now()
+                node.get_logger().warning(
+                    f'{skill}: /odom is late; the base waits for it '
+                    f'(up to {gap.max_wait_s:.1f} s)', throttle_duration_sec=5.0)
+            if gap.holding:
+                self._sleep_period()
+                continue
+            if step == 'resume':
+                t0 += node.now() - held_at
             t = node.now() - t0
             v, w, phase, done, ok = tracker.command(t, pose)
             if done:
                 node.commands.stop_base()
                 if ok:
-                    return None
+                    rest = self._rest_pose(gap.max_wait_s)
+                    if rest is None or tracker.settled(rest):
+                        return None
+                    continue   # lagging odometry: the base overshot, settle again
                 b, h, r = tracker.final_errors(pose)
                 return 'abort', (f'the base did not settle: bearing {np.degrees(b):.1f} deg, '
                                  f'heading {np.degrees(h):.1f} deg, radius {100 * r:.1f} cm off')
@@ -151,6 +176,21 @@ class SkillActionServers:
                 self._feedback(skill, goal_handle, phase,
                                progress_of(min(t, plan.duration) / max(plan.duration, 1e-6)))
             self._sleep_period()
+
+    def _rest_pose(self, max_wait_s):
+        """After a stop: the pose from the first odometry that arrives after it and shows
+        the base at rest (None if none within `max_wait_s` wall seconds). The odometry the
+        tracker judged settled can lag the base (a loaded machine): the base may have
+        turned on for that lag, and only a pose at rest tells where it stopped."""
+        state = self.node.state
+        count = state.odom_count()
+        deadline = time.monotonic() + max_wait_s
+        while time.monotonic() < deadline:
+            pose = state.rest_pose_since(count)
+            if pose is not None:
+                return pose
+            time.sleep(0.01)
+        return None
 
     def _move(self, skill, goal_handle, started, name, trajectory, progress_of):
         """Send one phase trajectory and wait for it to end and the joints to arrive."""

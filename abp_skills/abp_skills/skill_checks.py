@@ -1,6 +1,7 @@
 """What a running skill decides besides its plan, in plain code (no rclpy): whether a goal's
 values are acceptable, when it has run out of time, when a phase's joints have arrived (or
-never will), when feedback is due, and how to wait on a clock that may stop.
+never will), what a base drive does when its odometry goes stale, when feedback is due, and
+how to wait on a clock that may stop.
 
 Clocks are injected (`now` is the node's clock, sim time under use_sim_time; `monotonic`
 is wall time), so the rules are unit-tested without a ROS graph.
@@ -100,6 +101,50 @@ class ArrivalCheck:
         return False, ''
 
 
+class OdometryGap:
+    """What a base drive does when its odometry goes stale, in *wall* time.
+
+    `max_state_age` is node time (sim time under use_sim_time): at a sim speed-up of 10,
+    1 s of it is 100 ms of wall time, and a skills process starved of CPU that briefly
+    reads /clock ahead of /odom sees odometry that is late, not lost. So a stale pose does
+    not abort the drive at once: the base stops and the drive holds (its plan time paused)
+    until a fresh pose arrives; it aborts only when none arrives within `max_wait_s` of
+    wall time. `update(fresh)` returns the step to take:
+
+    - 'drive': the pose is fresh, track the plan;
+    - 'stop': the pose just went stale: stop the base and hold;
+    - 'hold': still stale, within the wall-time wait: keep holding (already stopped);
+    - 'resume': fresh again after a hold: shift the plan time by the time held, drive on;
+    - 'abort': stale for longer than `max_wait_s` wall seconds (`reason()` says so).
+    """
+
+    def __init__(self, max_wait_s, monotonic=time.monotonic):
+        self.max_wait_s = float(max_wait_s)
+        self._monotonic = monotonic
+        self._since = None      # wall time the pose went stale; None while fresh
+        self._waited = 0.0
+
+    @property
+    def holding(self):
+        return self._since is not None
+
+    def update(self, fresh):
+        if fresh:
+            held, self._since = self._since is not None, None
+            return 'resume' if held else 'drive'
+        now = self._monotonic()
+        if self._since is None:
+            self._since = now
+            self._waited = 0.0
+            return 'abort' if self.max_wait_s <= 0 else 'stop'
+        self._waited = now - self._since
+        return 'abort' if self._waited >= self.max_wait_s else 'hold'
+
+    def reason(self):
+        return (f'odometry lost: no recent /odom for {self._waited:.1f} s of wall time '
+                f'(state_wait_timeout {self.max_wait_s:.1f} s)')
+
+
 def sleep_on_clock(seconds, now, sleep=time.sleep, monotonic=time.monotonic):
     """Sleep `seconds` on the clock `now()` (sim time when use_sim_time is set), at most a
     few wall seconds (max(0.5, 5 x seconds)) so that a stopped /clock cannot block cancel
@@ -110,5 +155,5 @@ def sleep_on_clock(seconds, now, sleep=time.sleep, monotonic=time.monotonic):
         sleep(min(0.01, max(0.0, end - now())))
 
 
-__all__ = ['ArrivalCheck', 'FeedbackThrottle', 'Refused', 'manual_goal_overrides',
-           'sleep_on_clock', 'timeout_reason']
+__all__ = ['ArrivalCheck', 'FeedbackThrottle', 'OdometryGap', 'Refused',
+           'manual_goal_overrides', 'sleep_on_clock', 'timeout_reason']

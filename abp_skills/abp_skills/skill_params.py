@@ -21,6 +21,10 @@ NODE_SPECS = (
               'Seconds after which a cube pose estimate is too old to act on.', (0.1, 3600.0)),
     ParamSpec('max_state_age', DOUBLE, 1.0,
               'Seconds after which /joint_states or /odom count as lost.', (0.05, 60.0)),
+    ParamSpec('state_wait_timeout', DOUBLE, 3.0,
+              'Wall-clock seconds a skill waits for robot state before it refuses or aborts: '
+              'for the first /joint_states and /odom (discovery after start-up), and, during '
+              'a base motion (standing still), for /odom to be recent again.', (0.0, 60.0)),
     ParamSpec('timeout', DOUBLE, 120.0,
               'Seconds a skill may run before it stops and aborts.', (1.0, 3600.0)),
     ParamSpec('control_rate', DOUBLE, 20.0,

@@ -126,10 +126,12 @@ class SkillsNode(Node):
         return self.get_parameter(name).value
 
     def joints(self):
-        return self.state.joints(self.param('max_state_age'))
+        return self.state.joints(self.param('max_state_age'),
+                                 first_wait_s=self.param('state_wait_timeout'))
 
     def base_pose(self):
-        return self.state.base_pose(self.param('max_state_age'))
+        return self.state.base_pose(self.param('max_state_age'),
+                                    first_wait_s=self.param('state_wait_timeout'))
 
     def cube(self):
         """(cube centre in base_link now, in odom) from the latest estimate."""

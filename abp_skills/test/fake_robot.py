@@ -4,7 +4,7 @@ Run as a process by the node tests until the sim bridge exists. It implements th
 command/sensor contract of docs/INTERFACES.md and nothing else (no cube, no physics):
 
 - /cmd_vel (Twist) is integrated into /odom as a unicycle; the base stops when no command
-  arrives for 0.5 s.
+  arrives for `--cmd-timeout` s (default 0.5; a long one means only a zero command stops it).
 - /{torso,left_arm,right_arm,head}_controller/joint_trajectory are followed by linear
   interpolation of the points (time_from_start counts from header.stamp, a zero stamp
   meaning on receipt; the joints hold until then);
@@ -12,7 +12,7 @@ command/sensor contract of docs/INTERFACES.md and nothing else (no cube, no phys
   positions are clamped to the URDF limits.
 - /joint_states (all 13 joints, position and velocity) and /odom are published at 50 Hz.
 
-    python fake_robot.py [--posture home|neutral]
+    python fake_robot.py [--posture home|neutral] [--cmd-timeout S]
 """
 
 import argparse
@@ -39,8 +39,9 @@ HOME = {'left_shoulder_pitch_joint': 0.5, 'left_shoulder_roll_joint': 0.2,
 
 
 class FakeRobot(Node):
-    def __init__(self, posture):
+    def __init__(self, posture, cmd_timeout=0.5):
         super().__init__('fake_robot')
+        self.cmd_timeout = float(cmd_timeout)
         self.kin = RobotKinematics()
         self.lock = threading.Lock()
         self.q = self.kin.neutral()
@@ -105,7 +106,7 @@ class FakeRobot(Node):
                     del self.active[name]
             self.q = self.kin.clip(self.q)
             self.qd = (self.q - prev) / max(dt, 1e-6)
-            v, w = self.cmd if now - self.cmd_time <= 0.5 else (0.0, 0.0)
+            v, w = self.cmd if now - self.cmd_time <= self.cmd_timeout else (0.0, 0.0)
             x, y, yaw = self.pose
             self.pose = np.array([x + v * dt * np.cos(yaw), y + v * dt * np.sin(yaw),
                                   yaw + w * dt])
@@ -129,9 +130,10 @@ class FakeRobot(Node):
 def main():
     parser = argparse.ArgumentParser()
     parser.add_argument('--posture', choices=('home', 'neutral'), default='home')
+    parser.add_argument('--cmd-timeout', type=float, default=0.5)
     args, ros_args = parser.parse_known_args()
     rclpy.init(args=[sys.argv[0], *ros_args])
-    node = FakeRobot(args.posture)
+    node = FakeRobot(args.posture, args.cmd_timeout)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

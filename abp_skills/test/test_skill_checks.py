@@ -10,6 +10,7 @@ from abp_skills.robot_state import RobotState, point_base_to_odom, point_odom_to
 from abp_skills.skill_checks import (
     ArrivalCheck,
     FeedbackThrottle,
+    OdometryGap,
     Refused,
     manual_goal_overrides,
     sleep_on_clock,
@@ -65,6 +66,29 @@ def test_arrival_waits_for_the_joints_in_node_and_wall_time():
     done, reason = check.check(5.5, [0.5, 2.0])
     assert done and reason == ('the joints did not reach the end of the stroke phase '
                                '(a 0.500 rad off)')
+
+
+def test_late_odometry_stops_and_waits_in_wall_time_before_aborting():
+    wall = Clock(50.0)
+    gap = OdometryGap(2.0, monotonic=wall)
+    assert gap.update(True) == 'drive' and not gap.holding
+    # A short gap (a starved process at a high sim speed-up): stop, hold, then resume.
+    assert gap.update(False) == 'stop' and gap.holding
+    wall.t += 1.9
+    assert gap.update(False) == 'hold'
+    assert gap.update(True) == 'resume' and not gap.holding
+    assert gap.update(True) == 'drive'
+    # The wait starts again at every gap: a new one gets the whole 2 s.
+    wall.t += 10.0
+    assert gap.update(False) == 'stop'
+    wall.t += 1.0
+    assert gap.update(False) == 'hold'
+    wall.t += 1.0
+    assert gap.update(False) == 'abort'
+    assert gap.reason() == ('odometry lost: no recent /odom for 2.0 s of wall time '
+                            '(state_wait_timeout 2.0 s)')
+    # No wait at all: abort at the first stale pose.
+    assert OdometryGap(0.0, monotonic=wall).update(False) == 'abort'
 
 
 def test_sleep_on_clock_follows_the_clock_but_not_a_stopped_one():
@@ -126,3 +150,14 @@ def test_point_frames_are_inverse():
     pose = (0.3, -0.2, 0.7)
     p = np.array([0.5, 0.1, 0.05])
     np.testing.assert_allclose(point_odom_to_base(pose, point_base_to_odom(pose, p)), p)
+
+
+def test_a_rest_pose_is_one_that_arrived_after_the_stop_and_shows_no_motion():
+    state = _state(Clock(0.0))
+    state.set_odom((1.0, 0.0, 0.3), (0.0, 0.6))          # still turning
+    count = state.odom_count()                           # the stop is sent now
+    assert state.rest_pose_since(count) is None          # nothing new yet
+    state.set_odom((1.0, 0.0, 0.4), (0.0, 0.6))          # lagging: turned on
+    assert state.rest_pose_since(count) is None
+    state.set_odom((1.0, 0.0, 0.45), (0.0, 0.0))         # at rest, where it stopped
+    np.testing.assert_allclose(state.rest_pose_since(count), [1.0, 0.0, 0.45])

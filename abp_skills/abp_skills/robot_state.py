@@ -48,8 +48,6 @@ class RobotState:
         self._q_time = None
         self._odom = None           # (x, y, yaw)
         self._odom_time = None
-        self._odom_twist = (0.0, 0.0)   # (v, w) the odometry reports
-        self._odom_count = 0            # odometry messages so far
         self._estimate = None       # (cube centre in odom (3,), receipt time)
 
     # -- writers (the node's subscriptions) ------------------------------------------------
@@ -58,28 +56,10 @@ class RobotState:
             self._q = self._q_from_mapping(positions, default=self._q)
             self._q_time = self._now()
 
-    def set_odom(self, pose, twist=(0.0, 0.0)):
+    def set_odom(self, pose):
         with self._lock:
             self._odom = np.asarray(pose, dtype=float).copy()
             self._odom_time = self._now()
-            self._odom_twist = (float(twist[0]), float(twist[1]))
-            self._odom_count += 1
-
-    def odom_count(self):
-        """How many odometry messages arrived so far (to wait for one after a command)."""
-        with self._lock:
-            return self._odom_count
-
-    def rest_pose_since(self, count, v_eps=0.01, w_eps=0.02):
-        """The pose of the latest odometry if it arrived after the first `count` messages
-        and reports the base at rest (|v| <= v_eps m/s, |w| <= w_eps rad/s), else None."""
-        with self._lock:
-            if self._odom_count <= count or self._odom is None:
-                return None
-            v, w = self._odom_twist
-            if abs(v) > v_eps or abs(w) > w_eps:
-                return None
-            return self._odom.copy()
 
     def set_cube_estimate(self, centre_in_base):
         """The cube centre seen now in base_link (kept in odom with the latest odometry)."""

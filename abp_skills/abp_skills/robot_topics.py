@@ -50,10 +50,8 @@ class RobotInputs:
     def _on_odom(self, msg):
         p = msg.pose.pose
         o = p.orientation
-        t = msg.twist.twist
         self.node.state.set_odom((p.position.x, p.position.y,
-                                  yaw_of_quaternion(o.x, o.y, o.z, o.w)),
-                                 (t.linear.x, t.angular.z))
+                                  yaw_of_quaternion(o.x, o.y, o.z, o.w)))
 
     def _on_observation(self, msg):
         if not msg.hypotheses:

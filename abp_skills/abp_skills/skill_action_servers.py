@@ -13,8 +13,6 @@ only when it stays late for `state_wait_timeout` wall seconds does the drive abo
 (`skill_checks.OdometryGap`).
 """
 
-import time
-
 import numpy as np
 import rclpy
 from builtin_interfaces.msg import Duration as DurationMsg
@@ -160,10 +158,7 @@ class SkillActionServers:
             if done:
                 node.commands.stop_base()
                 if ok:
-                    rest = self._rest_pose(gap.max_wait_s)
-                    if rest is None or tracker.settled(rest):
-                        return None
-                    continue   # lagging odometry: the base overshot, settle again
+                    return None
                 b, h, r = tracker.final_errors(pose)
                 return 'abort', (f'the base did not settle: bearing {np.degrees(b):.1f} deg, '
                                  f'heading {np.degrees(h):.1f} deg, radius {100 * r:.1f} cm off')
@@ -176,21 +171,6 @@ class SkillActionServers:
                 self._feedback(skill, goal_handle, phase,
                                progress_of(min(t, plan.duration) / max(plan.duration, 1e-6)))
             self._sleep_period()
-
-    def _rest_pose(self, max_wait_s):
-        """After a stop: the pose from the first odometry that arrives after it and shows
-        the base at rest (None if none within `max_wait_s` wall seconds). The odometry the
-        tracker judged settled can lag the base (a loaded machine): the base may have
-        turned on for that lag, and only a pose at rest tells where it stopped."""
-        state = self.node.state
-        count = state.odom_count()
-        deadline = time.monotonic() + max_wait_s
-        while time.monotonic() < deadline:
-            pose = state.rest_pose_since(count)
-            if pose is not None:
-                return pose
-            time.sleep(0.01)
-        return None
 
     def _move(self, skill, goal_handle, started, name, trajectory, progress_of):
         """Send one phase trajectory and wait for it to end and the joints to arrive."""

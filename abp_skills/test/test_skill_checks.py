@@ -151,13 +151,3 @@ def test_point_frames_are_inverse():
     p = np.array([0.5, 0.1, 0.05])
     np.testing.assert_allclose(point_odom_to_base(pose, point_base_to_odom(pose, p)), p)
 
-
-def test_a_rest_pose_is_one_that_arrived_after_the_stop_and_shows_no_motion():
-    state = _state(Clock(0.0))
-    state.set_odom((1.0, 0.0, 0.3), (0.0, 0.6))          # still turning
-    count = state.odom_count()                           # the stop is sent now
-    assert state.rest_pose_since(count) is None          # nothing new yet
-    state.set_odom((1.0, 0.0, 0.4), (0.0, 0.6))          # lagging: turned on
-    assert state.rest_pose_since(count) is None
-    state.set_odom((1.0, 0.0, 0.45), (0.0, 0.0))         # at rest, where it stopped
-    np.testing.assert_allclose(state.rest_pose_since(count), [1.0, 0.0, 0.45])

@@ -8,6 +8,7 @@ import os
 import subprocess
 import threading
 import time
+import uuid
 from pathlib import Path
 
 import pytest
@@ -28,7 +29,9 @@ from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
+from unique_identifier_msgs.msg import UUID  # noqa: E402
 
+from abp_common import qos  # noqa: E402
 from abp_common.qos import RELIABLE  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
 
@@ -159,7 +162,7 @@ class Harness:
 
     def wait_final_feedback(self, feedback, timeout=10.0):
         """Feedback travels apart from the result: the last one (progress 1) can arrive
-        after it."""
+        after it (`send` reads the feedback topic, so it is not dropped)."""
         assert self.spin(lambda: feedback and feedback[-1].progress == pytest.approx(1.0),
                          timeout), 'no final feedback'
 
@@ -175,11 +178,22 @@ class Harness:
         return answer
 
     def send(self, action_type, name, goal, feedback=None):
+        """Send a goal; its feedback goes into the list `feedback`. The feedback is read
+        from the action's feedback topic, not through the client: rclpy's ActionClient
+        drops feedback that arrives after the result, and the last feedback and the result
+        travel on different DDS entities, so either can come first."""
         client = ActionClient(self.node, action_type, f'/abp/skills/{name}')
         assert self.spin(client.server_is_ready, 20), f'no {name} server'
-        handle = self.wait_future(client.send_goal_async(
-            goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback
-            is not None else None))
+        goal_id = UUID(uuid=list(uuid.uuid4().bytes))
+        if feedback is not None:
+            def on_feedback(msg):
+                if bytes(msg.goal_id.uuid) == bytes(goal_id.uuid):
+                    feedback.append(msg.feedback)
+            topic = f'/abp/skills/{name}/_action/feedback'
+            sub = self.node.create_subscription(action_type.Impl.FeedbackMessage, topic,
+                                                on_feedback, qos.reliable(100))
+            assert self.spin(lambda: sub.get_publisher_count() > 0, 20), f'no {topic}'
+        handle = self.wait_future(client.send_goal_async(goal, goal_uuid=goal_id))
         assert handle.accepted
         return client, handle
 

@@ -11,12 +11,18 @@ Topic names are relative (abp_common.names): under a namespace the node reads an
 writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
 The science lives in `abp_perception.detector`; the camera pose in the base frame comes
 from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, no tf2).
-Images without camera_info are skipped (throttled warning); images in an unsupported
-encoding are skipped with a clear (throttled) error.
+Frames are rejected, never crash the node, with a throttled warning that says why and
+how many frames were rejected for that reason so far (`ArtagDetectorNode.rejected`):
+no camera_info yet (`no_camera_info`), a size other than camera_info's, both sizes named
+(`size`), an unsupported encoding (`encoding`), or an image the detector refuses
+(`image`).
 """
 
 import sys
+import time
+from collections import Counter
 
+import cv2
 import numpy as np
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
@@ -30,7 +36,13 @@ from abp_description.frames import quaternion_from_rotation
 from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
-from .detector import ImageEncodingError, TagDetector, image_msg_to_gray
+from .detector import (
+    ImageEncodingError,
+    ImageSizeError,
+    TagDetector,
+    check_image_size,
+    image_msg_to_gray,
+)
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
 THROTTLE_S = 5.0
@@ -50,9 +62,10 @@ class ArtagDetectorNode(Node):
         self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
         self._camera_key = None
-        self._camera_size = None
         self._joints = None
         self._warned_frames = set()
+        self.rejected = Counter()            # reason -> frames rejected so far
+        self._last_reject_log = {}           # reason -> time.monotonic() of its last line
         self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
                                           qos.RELIABLE)
         self.create_subscription(Image, names.IMAGE, self._on_image, qos.SENSOR_DATA)
@@ -66,9 +79,9 @@ class ArtagDetectorNode(Node):
             f"poses in {self.base_frame} via {self.camera_frame} forward kinematics")
 
     # -- parameters ---------------------------------------------------------------
-    def _build_detector(self, config, camera_matrix, dist_coeffs):
+    def _build_detector(self, config, camera_matrix, dist_coeffs, image_size=None):
         return TagDetector(camera_matrix, dist_coeffs, dictionary=self._values['dictionary'],
-                           camera_frame=self.camera_frame, **config)
+                           camera_frame=self.camera_frame, image_size=image_size, **config)
 
     def _on_set_parameters(self, params):
         changes = {p.name: p.value for p in params if p.name in DETECTOR_PARAMETERS}
@@ -78,7 +91,8 @@ class ArtagDetectorNode(Node):
         try:
             if self.detector is not None:
                 detector = self._build_detector(config, self.detector.camera_matrix,
-                                                self.detector.dist_coeffs)
+                                                self.detector.dist_coeffs,
+                                                self.detector.image_size)
             else:
                 detector = None
                 self._build_detector(config, np.diag([500.0, 500.0, 1.0]), None)
@@ -94,22 +108,24 @@ class ArtagDetectorNode(Node):
         k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
         d = np.asarray(msg.d, dtype=np.float64)
         key = (tuple(k.ravel()), tuple(d), msg.distortion_model)
-        if key == self._camera_key:
-            return
         if msg.distortion_model not in DISTORTION_MODELS:
             self.get_logger().warning(
                 f"camera_info distortion model {msg.distortion_model!r} is not supported "
                 f"(use {', '.join(m for m in DISTORTION_MODELS if m)}); images skipped",
                 throttle_duration_sec=THROTTLE_S)
             return
+        # A camera_info without a size (0 x 0) leaves the image size unchecked.
+        size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
+        key += (size,)
+        if key == self._camera_key:
+            return
         try:
-            self.detector = self._build_detector(self._config, k, d if d.size else None)
+            self.detector = self._build_detector(self._config, k, d if d.size else None, size)
         except ValueError as error:
             self.get_logger().warning(f'camera_info refused: {error}; images skipped',
                                       throttle_duration_sec=THROTTLE_S)
             return
         self._camera_key = key
-        self._camera_size = (int(msg.width), int(msg.height))
 
     def _on_joint_state(self, msg: JointState):
         if len(msg.name) != len(msg.position):
@@ -120,27 +136,60 @@ class ArtagDetectorNode(Node):
         self._joints = self.kinematics.q_from_mapping(
             joints, default=self._joints if self._joints is not None else None)
 
-    def _on_image(self, msg: Image):
-        if self.detector is None:
-            self.get_logger().warning(
-                f'no valid camera_info on {self.resolve_topic_name(names.CAMERA_INFO)} yet: '
-                'image skipped', throttle_duration_sec=THROTTLE_S)
+    def _reject(self, reason, text, error=False):
+        """Count a rejected frame and say why, at most once per THROTTLE_S per reason
+        (rclpy's own throttle is per call site: one reason would hide the others)."""
+        self.rejected[reason] += 1
+        now = time.monotonic()
+        if now - self._last_reject_log.get(reason, -np.inf) < THROTTLE_S:
             return
-        w, h = self._camera_size
-        if w and h and (msg.width != w or msg.height != h):
-            self.get_logger().warning(
-                f'image is {msg.width}x{msg.height} but camera_info is {w}x{h}: skipped',
-                throttle_duration_sec=THROTTLE_S)
+        self._last_reject_log[reason] = now
+        n = self.rejected[reason]
+        line = f'{text}: frame rejected ({n} {reason} rejection{"s" if n > 1 else ""} so far)'
+        # Two call sites: rclpy refuses one call site logging at two severities.
+        if error:
+            self.get_logger().error(line)
+        else:
+            self.get_logger().warning(line)
+
+    def _ready(self):
+        if self.detector is None:
+            self._reject('no_camera_info', 'no valid camera_info on '
+                         f'{self.resolve_topic_name(names.CAMERA_INFO)} yet')
+            return False
+        return True
+
+    def _on_image(self, msg: Image):
+        if not self._ready():
             return
         try:
+            # Before converting: a mismatched frame costs nothing.
+            check_image_size(msg.width, msg.height, self.detector.image_size)
             gray = image_msg_to_gray(msg)
-        except ImageEncodingError as error:
-            self.get_logger().error(f'image skipped: {error}', throttle_duration_sec=THROTTLE_S)
+        except ImageSizeError as error:
+            self._reject('size', str(error))
             return
-        result = self.detector.detect(gray)
+        except ImageEncodingError as error:
+            self._reject('encoding', str(error), error=True)
+            return
+        self._detect_and_publish(gray, msg.header)
+
+    def _detect_and_publish(self, gray, header):
+        try:
+            result = self.detector.detect(gray)
+        except ImageSizeError as error:
+            self._reject('size', str(error))
+            return
+        except ValueError as error:
+            self._reject('image', str(error))
+            return
+        except cv2.error as error:                # not expected: a frame never ends the node
+            self._reject('image', f'OpenCV failed on the image: {error.msg.strip()}',
+                         error=True)
+            return
         for dropped in result.dropped:
             self.get_logger().debug(f'tag {dropped.tag_id} dropped: {dropped.reason}')
-        frame = self._camera_frame_of(msg.header.frame_id)
+        frame = self._camera_frame_of(header.frame_id)
         if self._joints is not None:
             result = result.in_frame(self.kinematics.frame_pose(self._joints, frame),
                                      self.base_frame)
@@ -149,8 +198,8 @@ class ArtagDetectorNode(Node):
             self.get_logger().warning(
                 f'no {self.resolve_topic_name(names.JOINT_STATES)} yet: detections published '
                 'in the camera frame', throttle_duration_sec=THROTTLE_S)
-            out_frame = msg.header.frame_id or frame
-        self._pub.publish(self._to_msg(result, msg.header, out_frame))
+            out_frame = header.frame_id or frame
+        self._pub.publish(self._to_msg(result, header, out_frame))
 
     def _camera_frame_of(self, frame_id):
         if frame_id and self.kinematics.has_frame(frame_id):

@@ -16,6 +16,16 @@ Pipeline per grey image (``TagDetector.detect``):
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
    tag frame has x right, y up and z out of the tag face. The lower-error of the two
    IPPE solutions is used; the other one sizes the tilt uncertainty (below).
+   Fallback: IPPE_SQUARE (OpenCV 5.0) fails when the tag is parallel to the image plane
+   (to within ~0.001 deg: noise-free renders, not noisy camera images), i.e. when the
+   quad is an exact parallelogram and the homography has no perspective part. The tag
+   in the image centre then gets the identity rotation (facing away; reprojection error
+   ~0.7 side), elsewhere a rotation tilted by up to ~65 deg, with errors of 0.1-4 px
+   where the true pose has none. So when the quad is a parallelogram to within
+   ``PARALLELOGRAM_PX`` (0.02 px; IPPE fails up to ~3e-4 px) or the best IPPE error
+   exceeds ``PNP_FALLBACK_PX`` (0.5 px), the pose is also solved with ``SOLVEPNP_SQPNP``
+   and ``SOLVEPNP_ITERATIVE`` (both right on such quads, and ~5-15x IPPE's cost) and the
+   solution with the lowest reprojection error is used (``Detection.solver`` names it).
 5. Covariance and confidence (below). Degenerate or implausible detections are
    dropped with a reason (``DetectionResult.dropped``).
 
@@ -45,6 +55,12 @@ Confidence in [0, 1]: ``exp(-rms^2 / 2) * min(1, side / 20 px)``.
 Images are converted from ``sensor_msgs/Image``-shaped data without cv_bridge
 (``image_to_gray``): mono8 / 8UC1, bgr8, rgb8, bgra8, rgba8 (8UC3 and 8UC4 are taken
 as BGR / BGRA, OpenCV's order). Anything else raises ``ImageEncodingError``.
+
+Refusals (``ValueError`` with both values named, never a ``cv2.error``): an unknown
+dictionary name or id (the valid names listed), an image that is empty, not 2-D or not
+uint8 (``TagDetector.detect``), and an image whose size differs from the camera's
+``image_size`` given at construction (``ImageSizeError``: the scaled image of a 2x
+resized camera would put every tag at twice its distance).
 """
 
 from __future__ import annotations
@@ -57,8 +73,9 @@ import numpy as np
 from .corners import decode_quads, quad_areas, refine_quads
 
 __all__ = [
-    'ImageEncodingError', 'image_to_gray', 'image_msg_to_gray', 'SUPPORTED_ENCODINGS',
-    'DICTIONARY_NAMES', 'dictionary_id', 'marker_object_points', 'Detection',
+    'ImageEncodingError', 'ImageSizeError', 'image_to_gray', 'image_msg_to_gray',
+    'check_image_size', 'SUPPORTED_ENCODINGS',
+    'DICTIONARY_NAMES', 'dictionary_id', 'dictionary_name', 'marker_object_points', 'Detection',
     'DroppedDetection', 'DetectionResult', 'TagDetector', 'transform_covariance',
     'pose_covariance',
 ]
@@ -77,6 +94,12 @@ _ENCODINGS = {
 SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
 
 DICTIONARY_NAMES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith('DICT_')))
+# OpenCV id -> name; cv2.aruco.getPredefinedDictionary maps an unknown id to DICT_4X4_50
+# without a word, so ids are checked against this table first.
+_DICTIONARY_BY_ID = {}
+for _name in DICTIONARY_NAMES:
+    _DICTIONARY_BY_ID.setdefault(int(getattr(cv2.aruco, _name)), _name)
+del _name
 
 _FULL_CONFIDENCE_SIDE_PX = 20.0
 _POSITION_FLOOR = 1e-4       # m
@@ -85,10 +108,33 @@ _POSITION_FLOOR = 1e-4       # m
 SMALL_TAG_PX2 = 40.0
 MAX_CANDIDATES = 24          # rejected contours re-examined per image (largest first)
 _ROTATION_FLOOR = 1e-3       # rad
+# Best IPPE_SQUARE reprojection error (px) above which SQPNP and ITERATIVE are tried too
+# (module docstring). Good detections on the renders stay well below it.
+PNP_FALLBACK_PX = 0.5
+# A quad this close to a parallelogram (|q0 + q2 - q1 - q3|, px) is IPPE_SQUARE's
+# degenerate case (module docstring): the fallback solvers run too.
+PARALLELOGRAM_PX = 0.02
+_PNP_FALLBACKS = (('sqpnp', cv2.SOLVEPNP_SQPNP), ('iterative', cv2.SOLVEPNP_ITERATIVE))
 
 
 class ImageEncodingError(ValueError):
     """The image cannot be converted (unsupported encoding or inconsistent buffer)."""
+
+
+class ImageSizeError(ValueError):
+    """The image's size is not the one the camera intrinsics are for."""
+
+
+def check_image_size(width, height, expected):
+    """Raise ImageSizeError unless (width, height) equals `expected` (None: anything)."""
+    if expected is None:
+        return
+    ew, eh = expected
+    if (int(width), int(height)) != (ew, eh):
+        raise ImageSizeError(
+            f'image is {int(width)}x{int(height)} px but the camera intrinsics (camera_info) '
+            f'are for {ew}x{eh} px: poses would be wrong (a scaled image scales every '
+            f'distance); resize the image or use the matching camera_info')
 
 
 def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
@@ -123,11 +169,21 @@ def image_msg_to_gray(msg) -> np.ndarray:
 
 
 def dictionary_id(name) -> int:
-    """OpenCV id of a predefined ArUco dictionary given by name (e.g. 'DICT_4X4_50')."""
+    """OpenCV id of a predefined ArUco dictionary given by name (e.g. 'DICT_4X4_50') or by
+    its OpenCV id; anything else raises ValueError listing the valid names."""
     if isinstance(name, str) and name in DICTIONARY_NAMES:
         return int(getattr(cv2.aruco, name))
+    if isinstance(name, (int, np.integer)) and not isinstance(name, bool) \
+            and int(name) in _DICTIONARY_BY_ID:
+        return int(name)
     raise ValueError(f"unknown ArUco dictionary {name!r}; expected one of "
-                     f"{', '.join(DICTIONARY_NAMES)}")
+                     f"{', '.join(DICTIONARY_NAMES)} (or its cv2.aruco id)")
+
+
+def dictionary_name(name_or_id) -> str:
+    """The name of a predefined ArUco dictionary given by name or OpenCV id."""
+    did = dictionary_id(name_or_id)
+    return name_or_id if isinstance(name_or_id, str) else _DICTIONARY_BY_ID[did]
 
 
 def marker_object_points(marker_size: float) -> np.ndarray:
@@ -150,6 +206,7 @@ class Detection:
     marker_size: float             # m
     frame: str = 'camera'
     ambiguity: float = 0.0         # best / second-best IPPE reprojection error (0..1)
+    solver: str = 'ippe_square'    # PnP method whose pose is used (module docstring)
 
     @property
     def position(self) -> np.ndarray:
@@ -196,6 +253,12 @@ def _inside_any(points, quads) -> np.ndarray:
     return inside.any(axis=1)
 
 
+def _normal_angle(rotation, rvec) -> float:
+    """Angle (rad) between the face normal of `rotation` and that of rotation vector `rvec`."""
+    other, _ = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3))
+    return float(np.arccos(np.clip(rotation[:, 2] @ other[:, 2], -1.0, 1.0)))
+
+
 def transform_covariance(covariance, rotation) -> np.ndarray:
     """Rotate a 6 x 6 (position, rotation-vector) covariance by `rotation` (3 x 3)."""
     big = np.zeros((6, 6))
@@ -236,7 +299,8 @@ class TagDetector:
                  marker_size: float = 0.08, refine_corners: bool = True,
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
-                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera'):
+                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
+                 image_size=None):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -244,9 +308,8 @@ class TagDetector:
         if not max_reprojection_error > 0:
             raise ValueError(f'max_reprojection_error must be > 0 px, got '
                              f'{max_reprojection_error}')
-        self.dictionary_name = dictionary if isinstance(dictionary, str) else str(dictionary)
-        self.dictionary = cv2.aruco.getPredefinedDictionary(
-            dictionary_id(dictionary) if isinstance(dictionary, str) else int(dictionary))
+        self.dictionary_name = dictionary_name(dictionary)
+        self.dictionary = cv2.aruco.getPredefinedDictionary(dictionary_id(dictionary))
         self.marker_size = float(marker_size)
         self.refine_corners = bool(refine_corners)
         self.second_pass = bool(second_pass)
@@ -258,7 +321,7 @@ class TagDetector:
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
         self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
-        self.set_camera(camera_matrix, dist_coeffs)
+        self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
     def default_parameters(refine_corners: bool = True) -> "cv2.aruco.DetectorParameters":
@@ -282,9 +345,13 @@ class TagDetector:
         p.minMarkerDistanceRate = 0.05
         return p
 
-    def set_camera(self, camera_matrix, dist_coeffs=None):
-        """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None)."""
-        k = np.asarray(camera_matrix, dtype=np.float64).reshape(3, 3)
+    def set_camera(self, camera_matrix, dist_coeffs=None, image_size=None):
+        """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None) and the
+        (width, height) of the images they are for (None: not checked by `detect`)."""
+        k = np.asarray(camera_matrix, dtype=np.float64)
+        if k.size != 9:
+            raise ValueError(f'camera matrix must be 3 x 3, got shape {k.shape}')
+        k = k.reshape(3, 3)
         if not (np.isfinite(k).all() and k[0, 0] > 0 and k[1, 1] > 0):
             raise ValueError('camera matrix must be finite with positive focal lengths')
         d = None if dist_coeffs is None else np.asarray(dist_coeffs, np.float64).reshape(-1)
@@ -293,16 +360,25 @@ class TagDetector:
         if d is not None and (d.size not in (4, 5, 8, 12, 14) or not np.isfinite(d).all()):
             raise ValueError(f'distortion needs 4, 5, 8, 12 or 14 finite coefficients, '
                              f'got {d.size}')
+        if image_size is not None:
+            size = tuple(image_size)
+            if len(size) != 2 or not all(isinstance(v, (int, np.integer)) and v > 0
+                                         for v in size):
+                raise ValueError(f'image_size must be (width, height) in px > 0, got '
+                                 f'{image_size!r}')
+            image_size = (int(size[0]), int(size[1]))
         self.camera_matrix = k
         self.dist_coeffs = d
+        self.image_size = image_size
         self.focal_px = 0.5 * (k[0, 0] + k[1, 1])
 
     # -- detection ------------------------------------------------------------------------
     def detect(self, gray) -> DetectionResult:
-        """Detect tags in a grey uint8 image; poses in the camera optical frame."""
-        gray = np.asarray(gray)
-        if gray.ndim != 2 or gray.dtype != np.uint8:
-            raise ValueError(f'expected a 2-D uint8 grey image, got {gray.dtype} {gray.shape}')
+        """Detect tags in a grey uint8 image; poses in the camera optical frame.
+
+        Raises ValueError (ImageSizeError for a size other than `image_size`) for input
+        that is not a non-empty 2-D uint8 image of the camera's size."""
+        gray = self.check_image(gray)
         corners, ids, rejected = self.aruco.detectMarkers(gray)
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
         tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
@@ -329,6 +405,33 @@ class TagDetector:
             else:
                 detections.append(det)
         return DetectionResult(detections, dropped, recovered)
+
+    def check_image(self, gray) -> np.ndarray:
+        """`gray` as a C-contiguous (height, width) uint8 array, or ValueError saying why
+        not: empty, not 2-D (colour: convert it first), not uint8, or not `image_size`."""
+        if not isinstance(gray, np.ndarray):
+            try:
+                gray = np.asarray(gray)
+            except (TypeError, ValueError) as error:
+                raise ValueError(f'expected a 2-D uint8 grey image, got {type(gray).__name__}'
+                                 f' ({error})') from None
+        if gray.ndim == 3 and gray.shape[2] == 1:
+            gray = gray[:, :, 0]
+        if gray.ndim == 3 and gray.shape[2] in (3, 4):
+            raise ValueError(
+                f'expected a 2-D uint8 grey image, got {gray.shape[2]} channels '
+                f'{gray.shape} {gray.dtype}: convert it first (image_to_gray, or '
+                f'cv2.cvtColor with COLOR_BGR2GRAY / COLOR_BGRA2GRAY)')
+        if gray.ndim != 2:
+            raise ValueError(f'expected a 2-D uint8 grey image, got a {gray.ndim}-D array '
+                             f'{gray.shape} {gray.dtype}')
+        if gray.size == 0:
+            raise ValueError(f'empty image ({gray.shape[1]}x{gray.shape[0]} px)')
+        if gray.dtype != np.uint8:
+            raise ValueError(f'expected a 2-D uint8 grey image, got dtype {gray.dtype} '
+                             f'{gray.shape}: scale to 0..255 and convert to uint8 first')
+        check_image_size(gray.shape[1], gray.shape[0], self.image_size)
+        return np.ascontiguousarray(gray)
 
     def _candidates(self, rejected, accepted):
         """Rejected contours worth a second look: large enough, not inside an accepted
@@ -368,16 +471,22 @@ class TagDetector:
         if area <= 0 or not cv2.isContourConvex(quad.astype(np.float32).reshape(-1, 1, 2)):
             return DroppedDetection(tag_id, 'non-convex or mirrored quad', quad)
         try:
-            n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
-                self.object_points, quad, self.camera_matrix, self.dist_coeffs,
-                flags=cv2.SOLVEPNP_IPPE_SQUARE)
+            solutions = self._solve_pnp(quad, 'ippe_square', cv2.SOLVEPNP_IPPE_SQUARE)
         except cv2.error as error:
             return DroppedDetection(tag_id, f'solvePnP failed: {error.msg}', quad)
-        if not n:
+        ippe = solutions
+        parallelogram = np.abs(quad[0] + quad[2] - quad[1] - quad[3]).max() < PARALLELOGRAM_PX
+        if parallelogram or not ippe or ippe[0][0] > PNP_FALLBACK_PX or ippe[0][2][2] <= 0:
+            # IPPE_SQUARE's (near) fronto-parallel failure (module docstring).
+            for name, flag in _PNP_FALLBACKS:
+                try:
+                    solutions = solutions + self._solve_pnp(quad, name, flag)
+                except cv2.error:
+                    pass
+            solutions.sort(key=lambda sol: sol[0])
+        if not solutions:
             return DroppedDetection(tag_id, 'solvePnP found no pose', quad)
-        errors = np.asarray(errors, dtype=np.float64).reshape(-1)
-        rvec, tvec = np.asarray(rvecs[0]).reshape(3), np.asarray(tvecs[0]).reshape(3)
-        rms = float(errors[0])
+        rms, rvec, tvec, solver = solutions[0]
         if not (np.isfinite(rvec).all() and np.isfinite(tvec).all() and np.isfinite(rms)):
             return DroppedDetection(tag_id, 'non-finite pose', quad)
         if tvec[2] <= 0:
@@ -388,14 +497,34 @@ class TagDetector:
                 quad)
         rot, _ = cv2.Rodrigues(rvec)
         ambiguity, angle = 0.0, 0.0
-        if n > 1 and np.isfinite(errors[1]) and errors[1] > 0:
-            ambiguity = float(min(1.0, errors[0] / errors[1]))
+        if solver == 'ippe_square':
+            second = ippe[1] if len(ippe) > 1 else None
+        else:
+            # The best other pose: one whose face normal differs (the mirrored tilt).
+            second = next((sol for sol in solutions[1:]
+                           if _normal_angle(rot, sol[1]) > _ROTATION_FLOOR), None)
+        if second is not None and np.isfinite(second[0]) and second[0] > 0:
+            ambiguity = float(min(1.0, rms / second[0]))
             if ambiguity > self.ambiguity_ratio:
-                rot2, _ = cv2.Rodrigues(np.asarray(rvecs[1]).reshape(3))
-                angle = float(np.arccos(np.clip(rot[:, 2] @ rot2[:, 2], -1.0, 1.0)))
+                angle = _normal_angle(rot, second[1])
         pose = np.eye(4)
         pose[:3, :3], pose[:3, 3] = rot, tvec
         cov = pose_covariance(rot, tvec, side, rms, self.focal_px, self.corner_sigma_px, angle)
         confidence = float(np.exp(-0.5 * rms ** 2) * min(1.0, side / _FULL_CONFIDENCE_SIDE_PX))
         return Detection(tag_id, quad.copy(), pose, cov, rms, confidence, side,
-                         self.marker_size, self.camera_frame, ambiguity)
+                         self.marker_size, self.camera_frame, ambiguity, solver)
+
+    def _solve_pnp(self, quad, name, flag):
+        """[(rms px, rvec, tvec, name)] of cv2.solvePnPGeneric with `flag`, finite ones,
+        lowest error first."""
+        n, rvecs, tvecs, errors = cv2.solvePnPGeneric(
+            self.object_points, quad, self.camera_matrix, self.dist_coeffs, flags=flag)
+        errors = np.asarray(errors, dtype=np.float64).reshape(-1)
+        out = []
+        for i in range(int(n)):
+            rvec = np.asarray(rvecs[i], dtype=np.float64).reshape(3)
+            tvec = np.asarray(tvecs[i], dtype=np.float64).reshape(3)
+            if np.isfinite(errors[i]) and np.isfinite(rvec).all() and np.isfinite(tvec).all():
+                out.append((float(errors[i]), rvec, tvec, name))
+        out.sort(key=lambda sol: sol[0])
+        return out

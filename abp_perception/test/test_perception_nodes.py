@@ -47,6 +47,20 @@ def image_msg(gray, frame_id, stamp, encoding='mono8', bytes_per_pixel=1):
     return msg
 
 
+def publish_until_printed(ros_processes, proc, executor, spin, publish, text, timeout=60.0):
+    """Publish until `proc` prints a line with `text`: large best-effort samples can be
+    lost (right after discovery, or on a loaded machine), so one publish may not do."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        publish()
+        spin(executor, lambda: False, 0.1)
+        try:
+            return ros_processes.wait_for_line(proc, text, 0.3)
+        except AssertionError:
+            assert proc.poll() is None, 'detector died'
+    return None
+
+
 @pytest.fixture
 def tester(rclpy_context):
     node = rclpy.create_node('perception_tester', context=rclpy_context)
@@ -69,19 +83,8 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
     assert spin(executor, lambda: image_pub.get_subscription_count() > 0, 30)
     gray = np.full((cam.height, cam.width), 128, np.uint8)
 
-    def publish_until_logged(publish, text, timeout=60.0):
-        # Large best-effort samples can be lost (right after discovery, or on a loaded
-        # machine): keep publishing until the log line comes, up to a deadline.
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            publish()
-            spin(executor, lambda: False, 0.1)
-            try:
-                ros_processes.wait_for_line(proc, text, 0.3)
-                return True
-            except AssertionError:
-                assert proc.poll() is None, 'detector died'
-        return False
+    def publish_until_logged(publish, text):
+        return publish_until_printed(ros_processes, proc, executor, spin, publish, text)
 
     # No camera_info yet: skipped with a warning.
     assert publish_until_logged(
@@ -96,6 +99,17 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
                                     bytes_per_pixel=2))
 
     assert publish_until_logged(bad_encoding, "unsupported image encoding 'yuv422'")
+
+    # An image of another size than camera_info's: rejected naming both, and counted.
+    def scaled():
+        info_pub.publish(camera_info_msg(cam))
+        image_pub.publish(image_msg(np.full((2 * cam.height, 2 * cam.width), 128, np.uint8),
+                                    cam.frame_id, Time(sec=2)))
+
+    lines = publish_until_logged(
+        scaled, f'image is {2 * cam.width}x{2 * cam.height} px but the camera intrinsics '
+        f'(camera_info) are for {cam.width}x{cam.height} px')
+    assert lines and 'size rejection' in lines[-1]
     assert detections == []
     # A good image without joint states: published in the camera frame, still running.
     deadline = time.monotonic() + 60.0
@@ -110,7 +124,7 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
 
 
 @pytest.mark.parametrize('name, override, expected', [
-    ('artag_detector', 'dictionary:=DICT_BOGUS', 'dictionary'),
+    ('artag_detector', 'dictionary:=DICT_BOGUS', 'DICT_APRILTAG_36h11'),
     ('artag_detector', 'marker_size:=0.0', 'marker_size'),
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),

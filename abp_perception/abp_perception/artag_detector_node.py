@@ -1,6 +1,11 @@
 """ROS 2 wiring of the tag detector: the `artag_detector` node.
 
-Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS)
+Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS), with
+             `image_transport: raw` (the default), or
+             camera/image_raw/compressed (sensor_msgs/CompressedImage, JPEG or PNG,
+             image_transport's `compressed` convention, e.g. format
+             'rgb8; jpeg compressed bgr8'; decoded with cv2.imdecode), with
+             `image_transport: compressed`
              camera/camera_info (sensor_msgs/CameraInfo, sensor-data QoS)
              joint_states       (sensor_msgs/JointState; camera pose by forward kinematics)
 Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the image's
@@ -14,8 +19,8 @@ from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, 
 Frames are rejected, never crash the node, with a throttled warning that says why and
 how many frames were rejected for that reason so far (`ArtagDetectorNode.rejected`):
 no camera_info yet (`no_camera_info`), a size other than camera_info's, both sizes named
-(`size`), an unsupported encoding (`encoding`), or an image the detector refuses
-(`image`).
+(`size`), an unsupported encoding or compressed format (`encoding`), a compressed
+payload that does not decode (`decode`), or an image the detector refuses (`image`).
 """
 
 import sys
@@ -27,7 +32,7 @@ import numpy as np
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
-from sensor_msgs.msg import CameraInfo, Image, JointState
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 
 from abp_common import names, qos
 from abp_common.node_runner import run_node
@@ -37,16 +42,19 @@ from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
 from .detector import (
+    ImageDecodeError,
     ImageEncodingError,
     ImageSizeError,
     TagDetector,
     check_image_size,
+    compressed_msg_to_gray,
     image_msg_to_gray,
 )
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
 THROTTLE_S = 5.0
 DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', '')
+COMPRESSED_SUFFIX = '/compressed'     # image_transport's topic of the compressed transport
 
 
 class ArtagDetectorNode(Node):
@@ -68,15 +76,24 @@ class ArtagDetectorNode(Node):
         self._last_reject_log = {}           # reason -> time.monotonic() of its last line
         self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
                                           qos.RELIABLE)
-        self.create_subscription(Image, names.IMAGE, self._on_image, qos.SENSOR_DATA)
+        self.image_transport = self._values['image_transport']
+        if self.image_transport == 'compressed':
+            self.image_topic = names.IMAGE + COMPRESSED_SUFFIX
+            self.create_subscription(CompressedImage, self.image_topic,
+                                     self._on_compressed_image, qos.SENSOR_DATA)
+        else:
+            self.image_topic = names.IMAGE
+            self.create_subscription(Image, self.image_topic, self._on_image,
+                                     qos.SENSOR_DATA)
         self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
                                  qos.SENSOR_DATA)
         self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state,
                                  qos.SENSOR_DATA)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
-            f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m; "
-            f"poses in {self.base_frame} via {self.camera_frame} forward kinematics")
+            f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m "
+            f'in {self.image_transport} images on {self.resolve_topic_name(self.image_topic)}; '
+            f'poses in {self.base_frame} via {self.camera_frame} forward kinematics')
 
     # -- parameters ---------------------------------------------------------------
     def _build_detector(self, config, camera_matrix, dist_coeffs, image_size=None):
@@ -168,6 +185,19 @@ class ArtagDetectorNode(Node):
             gray = image_msg_to_gray(msg)
         except ImageSizeError as error:
             self._reject('size', str(error))
+            return
+        except ImageEncodingError as error:
+            self._reject('encoding', str(error), error=True)
+            return
+        self._detect_and_publish(gray, msg.header)
+
+    def _on_compressed_image(self, msg: CompressedImage):
+        if not self._ready():
+            return
+        try:
+            gray = compressed_msg_to_gray(msg)
+        except ImageDecodeError as error:
+            self._reject('decode', str(error))
             return
         except ImageEncodingError as error:
             self._reject('encoding', str(error), error=True)

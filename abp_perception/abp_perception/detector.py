@@ -55,6 +55,10 @@ Confidence in [0, 1]: ``exp(-rms^2 / 2) * min(1, side / 20 px)``.
 Images are converted from ``sensor_msgs/Image``-shaped data without cv_bridge
 (``image_to_gray``): mono8 / 8UC1, bgr8, rgb8, bgra8, rgba8 (8UC3 and 8UC4 are taken
 as BGR / BGRA, OpenCV's order). Anything else raises ``ImageEncodingError``.
+``sensor_msgs/CompressedImage`` payloads (JPEG or PNG, image_transport's ``compressed``
+format strings such as ``'rgb8; jpeg compressed bgr8'``) are decoded by
+``compressed_image_to_gray`` (``cv2.imdecode``); a corrupt payload raises
+``ImageDecodeError`` (an ``ImageEncodingError``).
 
 Refusals (``ValueError`` with both values named, never a ``cv2.error``): an unknown
 dictionary name or id (the valid names listed), an image that is empty, not 2-D or not
@@ -73,8 +77,9 @@ import numpy as np
 from .corners import decode_quads, quad_areas, refine_quads
 
 __all__ = [
-    'ImageEncodingError', 'ImageSizeError', 'image_to_gray', 'image_msg_to_gray',
-    'check_image_size', 'SUPPORTED_ENCODINGS',
+    'ImageEncodingError', 'ImageDecodeError', 'ImageSizeError', 'image_to_gray',
+    'image_msg_to_gray', 'compressed_image_to_gray', 'compressed_msg_to_gray',
+    'parse_compressed_format', 'check_image_size', 'SUPPORTED_ENCODINGS',
     'DICTIONARY_NAMES', 'dictionary_id', 'dictionary_name', 'marker_object_points', 'Detection',
     'DroppedDetection', 'DetectionResult', 'TagDetector', 'transform_covariance',
     'pose_covariance',
@@ -119,6 +124,10 @@ _PNP_FALLBACKS = (('sqpnp', cv2.SOLVEPNP_SQPNP), ('iterative', cv2.SOLVEPNP_ITER
 
 class ImageEncodingError(ValueError):
     """The image cannot be converted (unsupported encoding or inconsistent buffer)."""
+
+
+class ImageDecodeError(ImageEncodingError):
+    """A compressed image payload that does not decode (corrupt, truncated, empty)."""
 
 
 class ImageSizeError(ValueError):
@@ -166,6 +175,85 @@ def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
 def image_msg_to_gray(msg) -> np.ndarray:
     """``image_to_gray`` of anything with sensor_msgs/Image's fields."""
     return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
+
+
+def _parse_format(fmt):
+    """(original encoding or None, codec or None, transport encoding or None) of a
+    CompressedImage format string."""
+    fmt = (fmt or '').strip()
+    original, _, rest = fmt.rpartition(';') if ';' in fmt else ('', '', fmt)
+    tokens = rest.split()
+    lowered = [t.lower() for t in tokens]
+    if 'compresseddepth' in lowered:
+        raise ImageEncodingError(
+            f'compressed image format {fmt!r}: compressedDepth (depth images) is not '
+            'supported; expected JPEG or PNG of an 8-bit image')
+    codec = None
+    if lowered:
+        codec = {'jpeg': 'jpeg', 'jpg': 'jpeg', 'png': 'png'}.get(lowered[0])
+        if codec is None:
+            raise ImageEncodingError(
+                f'compressed image format {fmt!r}: unsupported codec {tokens[0]!r}; '
+                'expected jpeg or png')
+    transport = tokens[2] if len(tokens) >= 3 and lowered[1] == 'compressed' else None
+    return original.strip() or None, codec, transport
+
+
+def parse_compressed_format(fmt):
+    """``(original encoding, codec, transport encoding)`` of a sensor_msgs/CompressedImage
+    format string in image_transport's ``compressed`` convention: ``'<encoding>; jpeg
+    compressed <encoding>'``, ``'<encoding>; png compressed <encoding>'`` or the legacy
+    ``'jpeg'`` / ``'png'``; parts that are absent are None (an empty format: the codec is
+    read from the payload). Raises ImageEncodingError for other codecs, compressedDepth
+    and original encodings that are not 8-bit images (SUPPORTED_ENCODINGS)."""
+    original, codec, transport = _parse_format(fmt)
+    for enc in (original, transport):
+        if enc is not None and enc not in _ENCODINGS:
+            raise ImageEncodingError(
+                f'compressed image format {fmt!r}: unsupported image encoding {enc!r}; '
+                f"supported: {', '.join(SUPPORTED_ENCODINGS)}")
+    return original, codec, transport
+
+
+_MAGIC = {'jpeg': b'\xff\xd8', 'png': b'\x89PNG'}
+
+
+def compressed_image_to_gray(fmt, data) -> np.ndarray:
+    """A (height, width) uint8 grey image from a CompressedImage's format and data.
+
+    JPEG and PNG, decoded with ``cv2.imdecode`` straight to grey, except when the payload
+    holds RGB-ordered channels (transport encoding rgb8 / rgba8), which are decoded in
+    colour and converted as RGB. Raises ImageEncodingError for an unsupported format and
+    ImageDecodeError for a payload that does not decode."""
+    _, codec, transport = parse_compressed_format(fmt)
+    try:
+        buf = np.frombuffer(memoryview(data), dtype=np.uint8)
+    except TypeError:
+        buf = np.asarray(data, dtype=np.uint8).reshape(-1)
+    if buf.size == 0:
+        raise ImageDecodeError(f'empty compressed image payload (format {fmt!r})')
+    if codec is not None and not buf[:len(_MAGIC[codec])].tobytes() == _MAGIC[codec]:
+        raise ImageDecodeError(
+            f'compressed image payload of {buf.size} bytes is not {codec.upper()} data '
+            f'(format {fmt!r})')
+    rgb_order = transport in ('rgb8', 'rgba8')
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR if rgb_order else cv2.IMREAD_GRAYSCALE)
+    except cv2.error as error:
+        raise ImageDecodeError(f'compressed image payload of {buf.size} bytes does not '
+                               f'decode (format {fmt!r}): {error.msg.strip()}') from None
+    if img is None or img.size == 0:
+        raise ImageDecodeError(f'compressed image payload of {buf.size} bytes is corrupt or '
+                               f'truncated (format {fmt!r})')
+    if rgb_order:
+        # IMREAD_COLOR returns the payload's channels as stored, read as BGR.
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    return img
+
+
+def compressed_msg_to_gray(msg) -> np.ndarray:
+    """``compressed_image_to_gray`` of anything with sensor_msgs/CompressedImage's fields."""
+    return compressed_image_to_gray(msg.format, msg.data)
 
 
 def dictionary_id(name) -> int:

@@ -12,9 +12,15 @@ from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
 
 from .detector import DICTIONARY_NAMES
 
+IMAGE_TRANSPORTS = ('raw', 'compressed')
+
 DETECTOR_SPECS = (
     ParamSpec('dictionary', STRING, 'DICT_4X4_50', 'ArUco dictionary (OpenCV name).',
               read_only=True, choices=DICTIONARY_NAMES),
+    ParamSpec('image_transport', STRING, 'raw', "'raw': sensor_msgs/Image on camera/image_raw;"
+              " 'compressed': sensor_msgs/CompressedImage (JPEG or PNG, image_transport's "
+              'compressed convention) on camera/image_raw/compressed.', read_only=True,
+              choices=IMAGE_TRANSPORTS),
     ParamSpec('marker_size', DOUBLE, 0.08, "Edge of a tag's black square, m.", (0.005, 2.0)),
     ParamSpec('base_frame', STRING, 'base_link', 'Frame of the published poses (robot base).',
               read_only=True),
@@ -67,5 +73,5 @@ def matcher_options(values):
                 distance_samples=values['distance_samples'])
 
 
-__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'MATCHER_PARAMETERS', 'MATCHER_SPECS',
-           'matcher_options']
+__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'IMAGE_TRANSPORTS', 'MATCHER_PARAMETERS',
+           'MATCHER_SPECS', 'matcher_options']

@@ -1,4 +1,4 @@
-"""Tag detection without ARcube scenes: image conversions, refusals,
+"""Tag detection without ARcube scenes: image conversions (raw and compressed), refusals,
 the covariance model, drops, object points, poses of synthetic tags (tag_scene), among
 them the fronto-parallel tag IPPE_SQUARE gets wrong. Detection on rendered ARcube images:
 abp_bench/test."""
@@ -11,13 +11,16 @@ from tag_scene import paste_tag, render_tags, tag_pose
 from abp_perception.detector import (
     DICTIONARY_NAMES,
     PARALLELOGRAM_PX,
+    ImageDecodeError,
     ImageEncodingError,
     ImageSizeError,
     TagDetector,
+    compressed_image_to_gray,
     dictionary_id,
     dictionary_name,
     image_to_gray,
     marker_object_points,
+    parse_compressed_format,
     pose_covariance,
     transform_covariance,
 )
@@ -249,3 +252,93 @@ def test_rendered_tilted_tags_keep_ippe_square_poses():
         np.testing.assert_allclose(det.position, pose[:3, 3], atol=2e-3)
         assert angle_deg(det.normal, pose[:3, 2]) < 1.0
     assert found[3].solver == found[17].solver == 'ippe_square'
+
+
+# -- compressed images ---------------------------------------------------------------------
+
+@pytest.fixture(scope='module')
+def tag_scene_image():
+    from abp_description import camera_intrinsics
+    cam = camera_intrinsics()
+    tags = [(3, tag_pose([-0.1, 0.0, 0.7], 25.0)), (8, tag_pose([0.12, 0.05, 0.9], -15.0))]
+    return render_tags(cam.K, cam.width, cam.height, tags, 0.08)
+
+
+@pytest.mark.parametrize('fmt, ext, colour', [
+    ('mono8; jpeg compressed mono8', '.jpg', False),
+    ('bgr8; jpeg compressed bgr8', '.jpg', True),
+    ('rgb8; jpeg compressed bgr8', '.jpg', True),
+    ('mono8; png compressed mono8', '.png', False),
+    ('bgra8; png compressed bgra8', '.png', True),
+    ('jpeg', '.jpg', False),
+    ('png', '.png', True),
+    ('', '.png', False),                               # no format: the payload tells
+])
+def test_compressed_images_decode_to_grey_and_detect(detector, tag_scene_image, fmt, ext,
+                                                     colour):
+    image = cv2.cvtColor(tag_scene_image, cv2.COLOR_GRAY2BGR) if colour else tag_scene_image
+    ok, payload = cv2.imencode(ext, image, [cv2.IMWRITE_JPEG_QUALITY, 80])
+    assert ok
+    gray = compressed_image_to_gray(fmt, payload.tobytes())
+    assert gray.shape == tag_scene_image.shape and gray.dtype == np.uint8
+    if ext == '.png':
+        np.testing.assert_array_equal(gray, tag_scene_image)
+    assert sorted(d.tag_id for d in detector.detect(gray).detections) == [3, 8]
+
+
+def test_compressed_rgb_payload_is_converted_as_rgb():
+    bgr = np.zeros((4, 6, 3), np.uint8)
+    bgr[..., 2] = 200                                   # pure red
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    _, as_bgr = cv2.imencode('.png', bgr)
+    _, as_rgb = cv2.imencode('.png', bgr[..., ::-1].copy())   # channels stored R, G, B
+    # libpng's own grey conversion may round one level apart from cv2.cvtColor's.
+    as_bgr = compressed_image_to_gray('bgr8; png compressed bgr8', as_bgr.tobytes())
+    as_rgb = compressed_image_to_gray('rgb8; png compressed rgb8', as_rgb.tobytes())
+    np.testing.assert_allclose(as_bgr.astype(int), expected, atol=1)
+    np.testing.assert_array_equal(as_rgb, expected)
+    swapped = cv2.cvtColor(bgr, cv2.COLOR_RGB2GRAY)          # what ignoring the order gives
+    assert abs(int(swapped[0, 0]) - int(expected[0, 0])) > 20
+
+
+def test_corrupt_compressed_payloads_raise_decode_errors(tag_scene_image):
+    _, jpeg = cv2.imencode('.jpg', tag_scene_image)
+    _, png = cv2.imencode('.png', tag_scene_image)
+    jpeg, png = jpeg.tobytes(), png.tobytes()
+    for fmt, payload, message in [
+        ('mono8; jpeg compressed mono8', jpeg[:len(jpeg) // 2], 'corrupt or truncated'),
+        ('mono8; png compressed mono8', png[:len(png) // 2], 'corrupt or truncated'),
+        ('mono8; jpeg compressed mono8', jpeg[:2] + bytes(1000), 'corrupt or truncated'),
+        ('mono8; jpeg compressed mono8', bytes(range(256)) * 8, 'is not JPEG data'),
+        ('mono8; jpeg compressed mono8', png, 'is not JPEG data'),
+        ('', bytes(range(256)) * 8, 'corrupt or truncated'),
+        ('mono8; jpeg compressed mono8', b'', 'empty compressed image payload'),
+    ]:
+        with pytest.raises(ImageDecodeError, match=message):
+            compressed_image_to_gray(fmt, payload)
+
+
+@pytest.mark.parametrize('fmt, message', [
+    ('16UC1; compressedDepth png', 'compressedDepth'),
+    ('16UC1; compressedDepth', 'compressedDepth'),
+    ('mono16; png compressed mono16', "unsupported image encoding 'mono16'"),
+    ('bgr8; webp compressed bgr8', "unsupported codec 'webp'"),
+    ('theora', "unsupported codec 'theora'"),
+])
+def test_unsupported_compressed_formats_are_refused(fmt, message):
+    with pytest.raises(ImageEncodingError, match=message) as info:
+        compressed_image_to_gray(fmt, b'\x89PNG....')
+    assert not isinstance(info.value, ImageDecodeError)
+
+
+def test_compressed_format_strings_parse():
+    assert parse_compressed_format('rgb8; jpeg compressed bgr8') == ('rgb8', 'jpeg', 'bgr8')
+    assert parse_compressed_format('mono8; png compressed mono8') == ('mono8', 'png', 'mono8')
+    assert parse_compressed_format('jpeg') == (None, 'jpeg', None)
+    assert parse_compressed_format('') == (None, None, None)
+
+
+def test_ippe_square_object_points_follow_the_documented_order():
+    pts = marker_object_points(0.08)
+    np.testing.assert_allclose(pts, [[-0.04, 0.04, 0], [0.04, 0.04, 0], [0.04, -0.04, 0],
+                                     [-0.04, -0.04, 0]])

@@ -1,13 +1,16 @@
 """The perception nodes over real DDS: bad input is skipped with a clear log line; bad
-parameters are refused. A rendered image in, the right aspect observation out:
+parameters are refused; compressed images (image_transport's `compressed` topic) give
+the same detections as raw ones. A rendered image in, the right aspect observation out:
 abp_bench/test/test_perception_nodes_on_scenes.py."""
 
 import os
 import subprocess
 import time
 
+import cv2
 import numpy as np
 import pytest
+from tag_scene import render_tags, tag_pose
 
 rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
@@ -17,7 +20,7 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
 
 from builtin_interfaces.msg import Time  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
@@ -44,6 +47,14 @@ def image_msg(gray, frame_id, stamp, encoding='mono8', bytes_per_pixel=1):
     msg.header.frame_id = frame_id
     msg.header.stamp = stamp
     msg.data = gray.tobytes()
+    return msg
+
+
+def compressed_msg(payload, fmt, frame_id, stamp):
+    msg = CompressedImage(format=fmt)
+    msg.header.frame_id = frame_id
+    msg.header.stamp = stamp
+    msg.data = bytes(payload)
     return msg
 
 
@@ -123,8 +134,69 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
     assert proc.poll() is None
 
 
+def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_processes, tester,
+                                                                     spin):
+    cam = camera_intrinsics()
+    proc = ros_processes.start([executable('artag_detector'), '--ros-args',
+                                '-p', 'image_transport:=compressed'])
+    node, executor = tester
+    topic = names.IMAGE + '/compressed'
+    image_pub = node.create_publisher(CompressedImage, topic, qos.SENSOR_DATA)
+    info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
+    detections = []
+    node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
+                             qos.RELIABLE)
+    assert spin(executor, lambda: image_pub.get_subscription_count() > 0
+                and info_pub.get_subscription_count() > 0
+                and node.count_publishers(names.TAG_DETECTIONS) > 0, 30)
+    assert node.count_subscribers(names.IMAGE) == 0             # not the raw topic
+
+    tags = {3: tag_pose([-0.1, 0.0, 0.7], 25.0), 8: tag_pose([0.12, 0.05, 0.9], -15.0)}
+    scene = render_tags(cam.K, cam.width, cam.height, list(tags.items()), 0.08)
+    colour = cv2.cvtColor(scene, cv2.COLOR_GRAY2RGB)             # an rgb8 camera
+    _, jpeg = cv2.imencode('.jpg', colour[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 80])
+    _, big = cv2.imencode('.png', cv2.resize(scene, (2 * cam.width, 2 * cam.height)))
+
+    def publish(payload, fmt, sec):
+        info_pub.publish(camera_info_msg(cam))
+        image_pub.publish(compressed_msg(payload, fmt, cam.frame_id, Time(sec=sec)))
+
+    def publish_until_logged(publish, text):
+        return publish_until_printed(ros_processes, proc, executor, spin, publish, text)
+
+    # A corrupt payload (a truncated JPEG): rejected with a warning and counted.
+    lines = publish_until_logged(
+        lambda: publish(jpeg.tobytes()[:5000], 'rgb8; jpeg compressed bgr8', 1),
+        'is corrupt or truncated')
+    assert lines and 'decode rejection' in lines[-1]
+    # Garbage that is not JPEG at all, and a frame of another size than camera_info's.
+    assert publish_until_logged(
+        lambda: publish(bytes(range(256)) * 40, 'mono8; jpeg compressed mono8', 2),
+        'is not JPEG data')
+    assert publish_until_logged(
+        lambda: publish(big.tobytes(), 'mono8; png compressed mono8', 3),
+        f'image is {2 * cam.width}x{2 * cam.height} px but the camera intrinsics')
+    assert detections == [] and proc.poll() is None
+
+    # A good JPEG frame: both tags, where they are (camera frame: no joint states).
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and not detections:
+        publish(jpeg.tobytes(), 'rgb8; jpeg compressed bgr8', 4)
+        spin(executor, lambda: detections, 0.3)
+    assert detections, 'no detections from compressed frames'
+    out = detections[-1]
+    assert out.header.stamp.sec == 4 and out.header.frame_id == cam.frame_id
+    found = {d.id: d for d in out.detections}
+    assert sorted(found) == [3, 8]
+    for tag_id, pose in tags.items():
+        p = found[tag_id].pose.pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=0.01)
+    assert proc.poll() is None
+
+
 @pytest.mark.parametrize('name, override, expected', [
     ('artag_detector', 'dictionary:=DICT_BOGUS', 'DICT_APRILTAG_36h11'),
+    ('artag_detector', 'image_transport:=theora', 'image_transport'),
     ('artag_detector', 'marker_size:=0.0', 'marker_size'),
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),

@@ -28,5 +28,7 @@ fi
 export VIRTUAL_ENV="$ABP_REPO/.venv"
 export PATH="$ABP_REPO/.venv/bin:$PATH"
 export RMW_IMPLEMENTATION="${RMW_IMPLEMENTATION:-rmw_fastrtps_cpp}"
+# MuJoCo renders headless through EGL; it reads MUJOCO_GL when it is first imported.
+export MUJOCO_GL="${MUJOCO_GL:-egl}"
 # colcon without colcon-bash writes the POSIX setup.sh only.
 COLCON_CURRENT_PREFIX="$ABP_REPO/install" . "$ABP_REPO/install/setup.sh"

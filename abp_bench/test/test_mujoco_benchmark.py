@@ -1,10 +1,14 @@
 """The MuJoCo world benchmark runs (tiny sizes) and its numbers are sane."""
 
 import json
+import os
 
 import numpy as np
 import pytest
 
+# Headless rendering: MuJoCo picks its GL backend when first imported in this process
+# (another test module may import it first).
+os.environ.setdefault('MUJOCO_GL', 'egl')
 pytest.importorskip('mujoco')
 
 from abp_bench import mujoco_benchmark as mb  # noqa: E402

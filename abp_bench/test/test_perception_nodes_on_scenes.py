@@ -114,8 +114,10 @@ def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester
             info_pub.publish(camera_info_msg(cam))
             joint_pub.publish(joints)
             image_pub.publish(mono8_msg(scene.image, cam.frame_id, stamp))
-            return spin(executor, lambda: any(o.header.stamp == stamp for o in observations),
-                        0.5)
+            # The detection and the observation made from it reach this node on two
+            # subscriptions, in either order: wait for both.
+            return spin(executor, lambda: any(o.header.stamp == stamp for o in observations)
+                        and any(d.header.stamp == stamp for d in detections), 0.5)
 
         # Best-effort images can be lost on a loaded machine: publish until observed,
         # bounded by a deadline rather than a count of attempts.

@@ -73,18 +73,24 @@ class RobotState:
         with self._lock:
             return None if self._q is None else self._q.copy()
 
-    def _wait_first(self, attribute, max_wait_s):
-        """Just after start-up, give a sensor topic up to `max_wait_s` to arrive."""
+    def _wait_fresh(self, attribute, max_age_s, max_wait_s):
+        """Give a sensor topic up to `max_wait_s` wall seconds to deliver a value younger
+        than `max_age_s`: just after start-up (discovery), or when this process was
+        starved of CPU and its callbacks lag the sim clock on a loaded machine."""
         deadline = self._monotonic() + max_wait_s
-        while getattr(self, attribute) is None and self._monotonic() < deadline:
+        while self._monotonic() < deadline:
+            with self._lock:
+                value, stamp = getattr(self, attribute), getattr(self, attribute + '_time')
+            if value is not None and self._now() - stamp <= max_age_s:
+                return
             self._sleep(0.02)
 
     def joints(self, max_age_s, wait=True, first_wait_s=None):
         """The joint positions; Refused when none arrived or they are too old. `wait`:
-        when none arrived yet, wait up to `first_wait_s` wall seconds (default
-        `max_age_s`) for the first (discovery can be slow on a loaded machine)."""
+        when none arrived yet or the latest is too old, wait up to `first_wait_s` wall
+        seconds (default `max_age_s`) for a fresh one."""
         if wait:
-            self._wait_first('_q', max_age_s if first_wait_s is None else first_wait_s)
+            self._wait_fresh('_q', max_age_s, max_age_s if first_wait_s is None else first_wait_s)
         with self._lock:
             q, stamp = self._q, self._q_time
         if q is None:
@@ -97,9 +103,10 @@ class RobotState:
     def base_pose(self, max_age_s, required=True, first_wait_s=None):
         """The odometry pose (x, y, yaw); when missing or too old: Refused if `required`
         (after waiting up to `first_wait_s`, default `max_age_s`, wall seconds for a first
-        one), else None (a skill under way reads it without waiting)."""
+        fresh one), else None (a skill under way reads it without waiting)."""
         if required:
-            self._wait_first('_odom', max_age_s if first_wait_s is None else first_wait_s)
+            self._wait_fresh('_odom', max_age_s,
+                             max_age_s if first_wait_s is None else first_wait_s)
         with self._lock:
             pose, stamp = self._odom, self._odom_time
         if pose is None or self._now() - stamp > max_age_s:

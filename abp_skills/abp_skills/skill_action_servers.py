@@ -97,13 +97,15 @@ class SkillActionServers:
         overrides = manual_goal_overrides(skill, goal_handle.request)
         return self._run_manual(skill, goal_handle, overrides, started)
 
-    def _check_goal(self, goal_handle, started):
-        """None to go on, or (outcome, reason) to stop now."""
+    def _check_goal(self, goal_handle, started, limit_s=None):
+        """None to go on, or (outcome, reason) to stop now. `limit_s`: the time allowed
+        since `started` (default: the `timeout` parameter)."""
         if goal_handle.is_cancel_requested:
             return 'cancel', 'canceled'
         if not goal_handle.is_active:
             return 'abort', 'goal no longer active'
-        late = timeout_reason(self.node.now() - started, self.node.param('timeout'))
+        late = timeout_reason(self.node.now() - started,
+                              self.node.param('timeout') if limit_s is None else limit_s)
         if late:
             return 'abort', late
         if not rclpy.ok(context=self.node.context):
@@ -172,7 +174,7 @@ class SkillActionServers:
                                progress_of(min(t, plan.duration) / max(plan.duration, 1e-6)))
             self._sleep_period()
 
-    def _move(self, skill, goal_handle, started, name, trajectory, progress_of):
+    def _move(self, skill, goal_handle, started, name, trajectory, progress_of, limit_s=None):
         """Send one phase trajectory and wait for it to end and the joints to arrive."""
         node = self.node
         t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'))
@@ -181,7 +183,7 @@ class SkillActionServers:
                                node.param('goal_tolerance'), node.param('settle_timeout'))
         idx = [node.kin.joint_index(n) for n in trajectory.joint_names]
         while True:
-            stop = self._check_goal(goal_handle, started)
+            stop = self._check_goal(goal_handle, started, limit_s)
             if stop:
                 return stop
             t = node.now() - t0
@@ -283,8 +285,10 @@ class SkillActionServers:
             home = node.motion_planner.go_home(q, look=cube_base)
         if home is None:
             return stop
-        # A fresh timeout budget for the retreat: `stop` may itself be the skill timeout.
-        failed = self._move(skill, goal_handle, node.now(), 'recover', home, lambda f: 1.0)
+        # Its own time limit: `stop` may itself be the skill timeout, which can be shorter.
+        limit = 2.0 * home.duration + node.param('settle_timeout') + 5.0
+        failed = self._move(skill, goal_handle, node.now(), 'recover', home, lambda f: 1.0,
+                            limit_s=limit)
         return outcome, f'{reason}; arms {"not " if failed else ""}back home'
 
 

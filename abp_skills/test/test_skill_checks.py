@@ -123,11 +123,29 @@ def test_state_ages_refuse_what_is_missing_or_old():
     np.testing.assert_allclose(state.joints(1.0), [1.0, 3.0])
     state.set_odom((1.0, 0.0, np.pi / 2))
     clock.t += 1.5
-    with pytest.raises(Refused, match='/joint_states is 1.5 s old'):
+    # Too old: each waits max_state_age (1 s here) for a fresh one, then refuses.
+    with pytest.raises(Refused, match='/joint_states is 2.5 s old'):
         state.joints(1.0)
-    with pytest.raises(Refused, match='/odom is 1.5 s old'):
+    with pytest.raises(Refused, match='/odom is 3.5 s old'):
         state.base_pose(1.0)
     np.testing.assert_allclose(state.latest_joints(), [1.0, 3.0])
+
+
+def test_a_stale_state_is_taken_when_a_fresh_one_comes_within_the_wait():
+    # A starved process reads its callbacks late: the value is old when the skill starts,
+    # and a fresh one arrives while it waits.
+    clock = Clock(10.0)
+    state = _state(clock)
+    state.set_joint_positions({'a': 1.0, 'b': 2.0})
+    clock.t += 1.5
+
+    def sleep_then_deliver(seconds):
+        clock.sleep(seconds)
+        if clock.t > 11.8:
+            state.set_joint_positions({'a': 4.0})
+    state._sleep = sleep_then_deliver
+    np.testing.assert_allclose(state.joints(1.0, first_wait_s=2.0), [4.0, 2.0])
+    assert clock.t == pytest.approx(11.8, abs=0.05)
 
 
 def test_the_cube_estimate_follows_the_base_and_ages():

@@ -393,6 +393,9 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
 
 # -- camera -------------------------------------------------------------------------------
 
+# Under CI load the first images (best effort, rendered in their own thread) came late
+# once (issue 14). A real fault fails every rerun.
+@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_camera_images_show_the_tags_the_ground_truth_says(ros_processes, tester_factory):
     start_bridge(ros_processes, world='rules', speedup=1.0, camera_encoding='bgr8',
                  distractors=3,

@@ -249,7 +249,7 @@ class SkillActionServers:
             stop = self._drive(skill, goal_handle, started, base_plan,
                                lambda f: f * base_plan.duration / total)
             if stop:
-                return stop
+                return self._retreat(skill, goal_handle, cube_base, stop)
             done = base_plan.duration
             cube_base = point_odom_to_base(node.base_pose(), cube_odom)
             q = node.joints()
@@ -283,8 +283,8 @@ class SkillActionServers:
             return stop
         with node.plan_lock:
             home = node.motion_planner.go_home(q, look=cube_base)
-        if home is None:
-            return stop
+        if home is None:  # the arms are home already
+            return outcome, f'{reason}; arms back home'
         # Its own time limit: `stop` may itself be the skill timeout, which can be shorter.
         limit = 2.0 * home.duration + node.param('settle_timeout') + 5.0
         failed = self._move(skill, goal_handle, node.now(), 'recover', home, lambda f: 1.0,

@@ -55,6 +55,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from abp_description.frames import axis_angle_deg
+
 from . import cube
 from .cube import (
     ACTIONS,
@@ -465,16 +467,9 @@ def motion_name(q) -> str:
 
 
 def _roll_name(q) -> str | None:
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(q) - 1) / 2, -1.0, 1.0))))
+    angle, axis = axis_angle_deg(q)
     if angle < 1.0:
         return 'none'
-    if angle > 179.0:
-        axis = np.sqrt(np.clip((np.diag(q) + 1) / 2, 0.0, None))
-        big = int(np.argmax(axis))
-        axis = np.sign(q[big] + (np.arange(3) == big)) * axis
-    else:
-        axis = np.array([q[2, 1] - q[1, 2], q[0, 2] - q[2, 0], q[1, 0] - q[0, 1]])
-        axis /= np.linalg.norm(axis)
     if abs(axis[2]) > 1e-6 or abs(angle - 90) > 1 and angle < 179.0:
         return None                                     # not a roll about a horizontal axis
     nonzero = [i for i in range(2) if abs(axis[i]) > 1e-6]

@@ -75,7 +75,7 @@ from abp_belief.cube import (
     STATES_PER_MODEL,
     apply_rotation,
 )
-from abp_description.frames import rot_z_deg
+from abp_description.frames import axis_angle_deg, rot_z_deg
 
 NOMINAL_CENTRE = (0.40, 0.0, 0.05)     # m, base_link: the skills' plan and the cube's mean
 DIFF_THRESHOLD = 0.10                  # a flagged cell differs by more than this anywhere
@@ -286,18 +286,11 @@ def rotation_name(q):
 
 
 def _axis_angle_name(q):
-    q = np.asarray(q, dtype=float)
-    angle = float(np.degrees(np.arccos(np.clip((np.trace(q) - 1) / 2, -1.0, 1.0))))
+    angle, axis = axis_angle_deg(q)
     if angle < 1.0:
         return 'none'
     if angle > 179.0:
-        axis = np.sqrt(np.clip((np.diag(q) + 1) / 2, 0.0, None))
-        big = int(np.argmax(axis))
-        axis = np.sign(q[big] + (np.arange(3) == big)) * axis
         axis *= np.sign(axis[np.nonzero(np.abs(axis) > 1e-6)[0][0]])
-    else:
-        axis = np.array([q[2, 1] - q[1, 2], q[0, 2] - q[2, 0], q[1, 0] - q[0, 1]])
-        axis /= np.linalg.norm(axis)
     axis = np.where(np.abs(axis) < 1e-6, 0.0, axis)
     nonzero = [i for i in range(3) if axis[i] != 0]
     deg = f'{round(angle):d}' if angle > 179.0 else f'{round(angle):+d}'

@@ -25,6 +25,22 @@ def rot_z_deg(angle_deg):
     return rot_z(np.radians(angle_deg))
 
 
+def axis_angle_deg(rotation):
+    """(angle in degrees, unit axis) of a 3x3 rotation. Below 1 degree the axis is
+    undefined and returned as zeros; near 180 degrees (where the antisymmetric part
+    vanishes) it comes from the diagonal, its sign from the largest component's row."""
+    q = np.asarray(rotation, dtype=float)
+    angle = float(np.degrees(np.arccos(np.clip((np.trace(q) - 1) / 2, -1.0, 1.0))))
+    if angle < 1.0:
+        return angle, np.zeros(3)
+    if angle > 179.0:
+        axis = np.sqrt(np.clip((np.diag(q) + 1) / 2, 0.0, None))
+        big = int(np.argmax(axis))
+        return angle, np.sign(q[big] + (np.arange(3) == big)) * axis
+    axis = np.array([q[2, 1] - q[1, 2], q[0, 2] - q[2, 0], q[1, 0] - q[0, 1]])
+    return angle, axis / np.linalg.norm(axis)
+
+
 def yaw_of_rotation(rotation):
     """Yaw (rad) of a 3x3 rotation's x axis projected on the floor."""
     return float(np.arctan2(rotation[1, 0], rotation[0, 0]))
@@ -88,6 +104,7 @@ def base_to_world(base_pose):
     return out
 
 
-__all__ = ['base_to_world', 'integrate_twist', 'quaternion_from_rotation', 'quaternion_from_yaw',
+__all__ = ['axis_angle_deg', 'base_to_world', 'integrate_twist', 'quaternion_from_rotation',
+           'quaternion_from_yaw',
            'rotation_from_quaternion', 'rot_z', 'rot_z_deg', 'se2_between', 'se2_compose',
            'wrap_rad', 'yaw_of_quaternion', 'yaw_of_rotation']

@@ -32,6 +32,7 @@ class ProcessGroup:
     def __init__(self):
         self.processes = []
         self._unread = {}  # pid -> output read from the pipe but not yet returned
+        self._read = {}  # pid -> all output read from the pipe so far (for failure reports)
 
     def start(self, argv, **kwargs):
         proc = subprocess.Popen(
@@ -91,7 +92,9 @@ class ProcessGroup:
                 chunk = os.read(proc.stdout.fileno(), 65536)
                 if not chunk:
                     break  # the process closed its output
-                pending += chunk.decode(errors='replace')
+                text_read = chunk.decode(errors='replace')
+                self._read[proc.pid] = self._read.get(proc.pid, '') + text_read
+                pending += text_read
             elif proc.poll() is not None:
                 break
         self._unread[proc.pid] = pending
@@ -103,14 +106,37 @@ class ProcessGroup:
         """All output of a finished (or stopped) process not yet read by wait_for_line."""
         if proc.stdout is None:
             return ''
-        return self._unread.pop(proc.pid, '') + proc.stdout.read()
+        rest = proc.stdout.read()
+        self._read[proc.pid] = self._read.get(proc.pid, '') + rest
+        return self._unread.pop(proc.pid, '') + rest
+
+    def transcript(self, proc):
+        """Everything a stopped process printed, including what wait_for_line read."""
+        self.output(proc)
+        return self._read.get(proc.pid, '')
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item, call):
+    # Kept on the item so that a fixture's teardown can tell whether the test failed.
+    report = yield
+    setattr(item, f'abp_report_{report.when}', report)
+    return report
 
 
 @pytest.fixture
-def ros_processes():
+def ros_processes(request):
     group = ProcessGroup()
     yield group
     group.stop_all()
+    report = getattr(request.node, 'abp_report_call', None)
+    if report is not None and report.failed:
+        # What the nodes said is what explains a failure over DDS: shown with the report.
+        for proc in group.processes:
+            lines = group.transcript(proc).splitlines()[-80:]
+            print(f'--- output of {" ".join(map(str, proc.args))[:160]} '
+                  f'(exit code {proc.returncode}), last {len(lines)} lines ---')
+            print('\n'.join(lines))
 
 
 @pytest.fixture
@@ -136,3 +162,35 @@ def spin_until(executor, predicate, timeout):
 @pytest.fixture
 def spin():
     return spin_until
+
+
+def action_server_answers(executor, action_client, timeout):
+    """Spin until the action server has answered a handshake (a goal sent after it is
+    not lost in DDS discovery: abp_common.server_handshake)."""
+    from abp_common.server_handshake import wait_until_answering
+    return wait_until_answering(
+        action_client, lambda done, seconds: spin_until(executor, done, seconds), timeout)
+
+
+@pytest.fixture
+def answering():
+    return action_server_answers
+
+
+def call_until_answered(executor, client, request, timeout, attempt_s=3.0):
+    """Call a service that is safe to ask twice, asking again every `attempt_s`: DDS
+    drops a reply to a client the server has not discovered yet. Returns the response."""
+    deadline = time.monotonic() + timeout
+    assert spin_until(executor, client.service_is_ready, timeout), \
+        f'no {client.srv_name} service'
+    while True:
+        future = client.call_async(request)
+        if spin_until(executor, future.done, attempt_s):
+            return future.result()
+        client.remove_pending_request(future)
+        assert time.monotonic() < deadline, f'{client.srv_name} did not answer in {timeout} s'
+
+
+@pytest.fixture
+def call_service():
+    return call_until_answered

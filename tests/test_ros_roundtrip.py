@@ -73,30 +73,26 @@ def test_every_message_round_trips(echo_process, node, spin):
         assert received[name] != types[name](), f'{name} was not populated'
 
 
-def test_services_answer_across_processes(echo_process, node, spin):
+def test_services_answer_across_processes(echo_process, node, call_service):
     executor = node.executor_for_test
     feasibility = node.create_client(CheckFeasibility, '/roundtrip/check_feasibility')
     reset = node.create_client(ResetBelief, '/roundtrip/reset_belief')
-    assert spin(executor, lambda: feasibility.service_is_ready() and reset.service_is_ready(), 20)
 
     request = CheckFeasibility.Request(actions=['PUSH', 'LIFT', 'FLIP'])
-    future = feasibility.call_async(request)
-    assert spin(executor, future.done, 10)
-    answer = future.result()
+    answer = call_service(executor, feasibility, request, 20)
     assert list(answer.actions) == ['PUSH', 'LIFT', 'FLIP']
     assert list(answer.feasible) == [True, False, True]
     assert answer.reasons[1] == 'unreachable: LIFT'
 
-    future = reset.call_async(ResetBelief.Request(model_prior=[0.5, 0.25, 0.25]))
-    assert spin(executor, future.done, 10)
-    assert future.result().success
-    assert future.result().message == 'reset with 3 prior entries'
+    answer = call_service(executor, reset, ResetBelief.Request(model_prior=[0.5, 0.25, 0.25]), 20)
+    assert answer.success
+    assert answer.message == 'reset with 3 prior entries'
 
 
-def test_action_goal_feedback_result_and_cancel(echo_process, node, spin):
+def test_action_goal_feedback_result_and_cancel(echo_process, node, spin, answering):
     executor = node.executor_for_test
     client = ActionClient(node, Orbit, '/roundtrip/orbit')
-    assert spin(executor, client.server_is_ready, 20), 'orbit server not found'
+    assert answering(executor, client, 20), 'orbit server not found'
 
     # A goal outside the allowed angles is rejected by the server.
     rejected = client.send_goal_async(Orbit.Goal(angle_deg=33.0))

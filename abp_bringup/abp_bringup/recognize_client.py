@@ -27,6 +27,7 @@ from rclpy.action import ActionClient
 from rclpy.utilities import remove_ros_args
 
 from abp_common import names, qos
+from abp_common.server_handshake import wait_until_answering
 from abp_msgs.action import Recognize
 from abp_msgs.msg import Belief, ExecutedAction, PlanStep, SimGroundTruth
 
@@ -131,7 +132,10 @@ def main(argv=None):
     server = names.absolute(names.RECOGNIZE, node.get_namespace())
     handle = None
     try:
-        if not spin_until(node, client.server_is_ready, args.wait):
+        # A handshake, not just server_is_ready(): a goal sent before the planner has
+        # discovered this client is lost, or is run with its acceptance never heard.
+        if not wait_until_answering(client, lambda done, seconds: spin_until(node, done, seconds),
+                                    args.wait):
             print(f'[recognize] no {server} server within {args.wait:.0f} s: is the '
                   'planner running?', file=sys.stderr)
             return 1

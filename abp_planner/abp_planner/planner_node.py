@@ -34,6 +34,7 @@ from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import names, qos
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
+from abp_common.server_handshake import PROBE_TIMEOUT_S, ask_action_server
 from abp_msgs.action import Flip, Lift, Orbit, Push, Recognize
 from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
 from abp_msgs.srv import CheckFeasibility, ResetBelief
@@ -258,6 +259,9 @@ class PlannerNode(Node):
         if not client.wait_for_server(timeout_sec=5.0):
             return (False, f'skill server {names.skill_action(skill)} not available',
                     Duration().to_msg())
+        if not self._server_answers(client, 5.0):
+            return (False, f'skill server {names.skill_action(skill)} does not answer',
+                    Duration().to_msg())
         started = self.get_clock().now()
         send = self._wait_future(self._skill_request(lambda: client.send_goal_async(make_goal())),
                                  10.0)
@@ -337,8 +341,30 @@ class PlannerNode(Node):
             return None
         return future.result()
 
-    def _call(self, client, request, timeout):
-        return self._wait_future(client.call_async(request), timeout)
+    def _server_answers(self, client, timeout):
+        """Handshake before a goal (abp_common.server_handshake): a goal sent while the
+        server has not yet discovered this client is lost, and the planner would wait out
+        the skill timeout for nothing."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            probe = self._skill_request(lambda: ask_action_server(client))
+            if self._wait_future(probe, PROBE_TIMEOUT_S) is not None:
+                return True
+        return False
+
+    def _call(self, client, request, timeout, attempt_s=2.0):
+        """Call an idempotent service (a reset, a query), asking again every `attempt_s`:
+        a reply to a client the server has not yet discovered is dropped by DDS."""
+        deadline = time.monotonic() + timeout
+        while True:
+            remaining = deadline - time.monotonic()
+            future = client.call_async(request)
+            response = self._wait_future(future, min(attempt_s, max(remaining, 0.0)))
+            if response is not None or time.monotonic() >= deadline:
+                if response is None:
+                    client.remove_pending_request(future)
+                return response
+            client.remove_pending_request(future)
 
     def _publish_markers(self):
         with self._belief_lock:

@@ -57,8 +57,8 @@ def client(rclpy_context):
     node.destroy_node()
 
 
-def recognize(executor, action_client, spin, goal, feedback=None, timeout=120):
-    assert spin(executor, action_client.server_is_ready, 30), 'no /abp/recognize server'
+def recognize(executor, action_client, spin, answering, goal, feedback=None, timeout=120):
+    assert answering(executor, action_client, 30), 'no /abp/recognize server'
     send = action_client.send_goal_async(
         goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback is not None
         else None)
@@ -71,11 +71,11 @@ def recognize(executor, action_client, spin, goal, feedback=None, timeout=120):
 
 
 @pytest.mark.parametrize('true_model', [0, 11])
-def test_recognize_identifies_the_true_model(ros_processes, client, spin, true_model):
+def test_recognize_identifies_the_true_model(ros_processes, client, spin, answering, true_model):
     node, executor, action_client, executed, plans = client
     start_graph(ros_processes, true_model)
     feedback = []
-    response = recognize(executor, action_client, spin,
+    response = recognize(executor, action_client, spin, answering,
                          Recognize.Goal(planner_mode='abp', max_actions=30,
                                         posterior_threshold=0.99), feedback)
     models = robot_set(seed=SEED)
@@ -90,14 +90,15 @@ def test_recognize_identifies_the_true_model(ros_processes, client, spin, true_m
     assert all(f.chosen_action for f in feedback)
 
 
-def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, client, spin):
+def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, client, spin,
+                                                              answering):
     node, executor, action_client, executed, plans = client
     # A twin model: telling it apart needs manual actions. LIFT always fails and
     # FLIP is refused by the feasibility check; the planner must work around both.
     models = robot_set(seed=SEED)
     twin = int(next(i for i in range(models.num_models) if models.mass[i] != 0))
     start_graph(ros_processes, twin, fail_action='LIFT', infeasible='FLIP')
-    response = recognize(executor, action_client, spin,
+    response = recognize(executor, action_client, spin, answering,
                          Recognize.Goal(planner_mode='abp', max_actions=30,
                                         posterior_threshold=0.99))
     assert response.status == GoalStatus.STATUS_SUCCEEDED
@@ -112,14 +113,14 @@ def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, cli
     assert response.result.actions_taken == len(executed)
 
 
-def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client, spin):
+def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client, spin, answering):
     node, executor, action_client, executed, plans = client
     # One action cannot tell a twin from its siblings: the budget ends the episode, and a
     # goal that did not identify the object must not report success.
     models = robot_set(seed=SEED)
     twin = int(next(i for i in range(models.num_models) if models.mass[i] != 0))
     start_graph(ros_processes, twin)
-    response = recognize(executor, action_client, spin,
+    response = recognize(executor, action_client, spin, answering,
                          Recognize.Goal(max_actions=1, stopping_rule='error'))
     assert response.status == GoalStatus.STATUS_ABORTED
     assert not response.result.success
@@ -134,10 +135,10 @@ def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client,
     assert not send.result().accepted
 
 
-def test_cancel_stops_the_loop(ros_processes, client, spin):
+def test_cancel_stops_the_loop(ros_processes, client, spin, answering):
     node, executor, action_client, executed, plans = client
     start_graph(ros_processes, 3)
-    assert spin(executor, action_client.server_is_ready, 30)
+    assert answering(executor, action_client, 30)
     send = action_client.send_goal_async(Recognize.Goal(max_actions=30, posterior_threshold=0.999))
     assert spin(executor, send.done, 10)
     handle = send.result()

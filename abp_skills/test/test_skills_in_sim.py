@@ -21,6 +21,7 @@ from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from abp_common.qos import LATCHED, RELIABLE  # noqa: E402
+from abp_common.server_handshake import wait_until_answering  # noqa: E402
 from abp_msgs.action import Flip, Lift, Orbit, Push  # noqa: E402
 from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 from abp_msgs.srv import CheckFeasibility  # noqa: E402
@@ -79,7 +80,8 @@ def sim_graph(ros_processes, rclpy_context):
 
 def run_skill(node, executor, spin, action_type, name, goal):
     client = ActionClient(node, action_type, f'/abp/skills/{name}')
-    assert spin(executor, client.server_is_ready, 60), f'no /abp/skills/{name} server'
+    assert wait_until_answering(client, lambda done, s: spin(executor, done, s), 60), \
+        f'no /abp/skills/{name} server'
     send = client.send_goal_async(goal)
     assert spin(executor, send.done, 30)
     handle = send.result()

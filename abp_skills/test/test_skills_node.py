@@ -33,6 +33,7 @@ from unique_identifier_msgs.msg import UUID  # noqa: E402
 
 from abp_common import qos  # noqa: E402
 from abp_common.qos import RELIABLE  # noqa: E402
+from abp_common.server_handshake import wait_until_answering  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
 
 # Known races under CI load (two busy loops beside the suite) that are not fixed yet
@@ -189,7 +190,7 @@ class Harness:
         drops feedback that arrives after the result, and the last feedback and the result
         travel on different DDS entities, so either can come first."""
         client = ActionClient(self.node, action_type, f'/abp/skills/{name}')
-        assert self.spin(client.server_is_ready, 20), f'no {name} server'
+        assert wait_until_answering(client, self.spin, 20), f'no {name} server'
         goal_id = UUID(uuid=list(uuid.uuid4().bytes))
         if feedback is not None:
             def on_feedback(msg):

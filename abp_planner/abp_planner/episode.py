@@ -6,9 +6,14 @@ check the stopping rule and cancellation, ask the planner for the best feasible 
 (retrying while nothing is feasible, for up to the observation timeout), run the skill,
 announce it, and wait for the belief that includes the action's evidence. A failed
 skill is left out of the next decision (re-plan) unless nothing else is feasible
-(retry). The ROS side (`planner_node`) provides the `EpisodePorts`: the belief as
-received on abp/belief, the skill and service calls, and the publishers. Time comes
-from the injected `clock` / `sleep`, so the rules are unit-tested without DDS.
+(retry). Before each decision, and whenever a skill fails or no fresh evidence comes,
+the runner asks which nodes it needs are gone; it then pauses until they are back (for
+up to `node_return_timeout_s`), re-observes (from a reset belief if the belief node was
+among them, since a restarted belief node has lost the evidence) and goes on, or aborts
+with a reason that names them. The ROS side (`planner_node`) provides the
+`EpisodePorts`: the belief as received on abp/belief, the skill and service calls, the
+publishers and the graph's view of the nodes. Time comes from the injected `clock` /
+`sleep`, so the rules are unit-tested without DDS.
 """
 
 import time
@@ -21,10 +26,18 @@ SUCCEEDED, CANCELED, ABORTED = 'succeeded', 'canceled', 'aborted'
 FEASIBILITY_RETRY_S = 0.5
 # After a missed observation: how long to wait for any belief at all.
 LATEST_BELIEF_WAIT_S = 1.0
+# While paused for a lost node: how often to look for it again.
+NODE_POLL_S = 0.5
+# The name `missing_nodes()` gives the belief node (its return means re-observing).
+BELIEF_NODE = 'belief'
 
 
 class RecognitionAborted(Exception):
     """The loop cannot go on (no observation, no feasible action); the reason is the message."""
+
+
+class _Cancelled(Exception):
+    """The goal was cancelled while the runner waited (ends the episode as CANCELED)."""
 
 
 class StopCheck(NamedTuple):
@@ -97,6 +110,10 @@ class EpisodePorts(Protocol):
 
     def cancel_requested(self) -> bool: ...
 
+    def missing_nodes(self) -> list:
+        """Names of the nodes the episode needs that are gone (BELIEF_NODE for the belief
+        node); empty when all are there."""
+
     def publish_plan(self, decision, feasible) -> None: ...
 
     def publish_feedback(self, belief, decision, actions_taken) -> None: ...
@@ -130,12 +147,13 @@ class EpisodeRunner:
     logger: info / warning / error (an rclpy or a logging logger)."""
 
     def __init__(self, planner, ports, num_nodes, stopping, observation_timeout_s, logger,
-                 clock=time.monotonic, sleep=time.sleep):
+                 clock=time.monotonic, sleep=time.sleep, node_return_timeout_s=60.0):
         self.planner = planner
         self.ports = ports
         self.num_nodes = int(num_nodes)
         self.stopping = stopping
         self.observation_timeout_s = float(observation_timeout_s)
+        self.node_return_timeout_s = float(node_return_timeout_s)
         self.log = logger
         self.clock = clock
         self.sleep = sleep
@@ -153,6 +171,7 @@ class EpisodeRunner:
                                          belief)
                 if ports.cancel_requested():
                     return EpisodeResult(CANCELED, False, 'cancelled', actions_taken, belief)
+                belief = self._wait_for_lost_nodes(belief)
                 decision, feasible = self._decide(belief, refused_after_failure)
                 ports.publish_plan(decision, feasible)
                 ports.publish_feedback(belief, decision, actions_taken)
@@ -175,7 +194,10 @@ class EpisodeRunner:
                     self.log.warning(f'{decision.action} failed: {reason}; re-planning')
                     refused_after_failure.add(decision.action)
                     expected_step = step_before + 1  # a fresh correction only
-                belief = self._wait_for_evidence(expected_step) or belief
+                belief = self._wait_for_evidence(expected_step, step_before) or belief
+        except _Cancelled:
+            return EpisodeResult(CANCELED, False, 'cancelled', actions_taken,
+                                 ports.latest_belief())
         except RecognitionAborted as error:
             self.log.error(f'recognition aborted: {error}')
             return EpisodeResult(ABORTED, False, str(error), actions_taken,
@@ -190,6 +212,33 @@ class EpisodeRunner:
                 f'no observation of the cube within {self.observation_timeout_s:.1f} s (is '
                 'perception running and the cube in view?)')
         return first
+
+    def _wait_for_lost_nodes(self, belief):
+        """`belief` if every needed node is there; else pause until they are back and
+        return the belief re-observed after their return, or abort naming them."""
+        missing = self.ports.missing_nodes()
+        if not missing:
+            return belief
+        gone = set(missing)
+        self.log.warning(f'episode paused: {", ".join(sorted(gone))} gone; waiting up to '
+                         f'{self.node_return_timeout_s:.0f} s for '
+                         f'{"it" if len(gone) == 1 else "them"} to come back')
+        deadline = self.clock() + self.node_return_timeout_s
+        while missing:
+            if self.ports.cancel_requested():
+                raise _Cancelled()
+            if self.clock() > deadline:
+                raise RecognitionAborted(
+                    f'{", ".join(sorted(missing))} gone and not back within '
+                    f'{self.node_return_timeout_s:.0f} s')
+            self.sleep(NODE_POLL_S)
+            missing = self.ports.missing_nodes()
+            gone.update(missing)
+        self.log.info(f'{", ".join(sorted(gone))} back: re-observing')
+        if BELIEF_NODE in gone:
+            return self._start()  # the evidence died with the old belief node
+        latest = self.ports.wait_for_belief(lambda b: True, self.observation_timeout_s)
+        return latest if latest is not None else belief
 
     def _decide(self, belief, refused_after_failure):
         """The planner's choice among the feasible actions: (decision, feasibility).
@@ -218,10 +267,19 @@ class EpisodeRunner:
                     raise RecognitionAborted(f'{error} ({reasons})') from error
                 self.sleep(FEASIBILITY_RETRY_S)
 
-    def _wait_for_evidence(self, expected_step):
-        """The belief with the action's evidence; after the timeout, the latest one."""
-        fresh = self.ports.wait_for_belief(lambda b: b.step >= expected_step,
-                                           self.observation_timeout_s)
+    def _wait_for_evidence(self, expected_step, step_before):
+        """The belief with the action's evidence; after the timeout, the latest one.
+
+        A belief whose step went back is from a belief node that restarted (a respawn)
+        before DDS noticed the old one gone: its belief lacks this episode's evidence, so
+        the episode re-observes from a reset belief."""
+        fresh = self.ports.wait_for_belief(
+            lambda b: b.step >= expected_step or b.step < step_before,
+            self.observation_timeout_s)
+        if fresh is not None and fresh.step < step_before:
+            self.log.warning(f'the belief went back from step {step_before} to {fresh.step}: '
+                             'the belief node restarted; re-observing')
+            return self._start()
         if fresh is None:
             self.log.warning(
                 'no fresh observation after the action within '
@@ -230,6 +288,6 @@ class EpisodeRunner:
         return fresh
 
 
-__all__ = ['ABORTED', 'CANCELED', 'SUCCEEDED', 'EpisodePorts', 'EpisodeResult', 'EpisodeRunner',
-           'PosteriorStop', 'RecognitionAborted', 'StopCheck', 'belief_array', 'expected_gain',
-           'top_posterior']
+__all__ = ['ABORTED', 'BELIEF_NODE', 'CANCELED', 'SUCCEEDED', 'EpisodePorts', 'EpisodeResult',
+           'EpisodeRunner', 'PosteriorStop', 'RecognitionAborted', 'StopCheck', 'belief_array',
+           'expected_gain', 'top_posterior']

@@ -31,6 +31,9 @@ PLANNER_SPECS = (
               'cancelled.', (1.0, 3600.0)),
     ParamSpec('observation_timeout', DOUBLE, 20.0, 'Seconds to wait for a fresh observation '
               'after an action before planning on the predicted belief.', (0.1, 600.0)),
+    ParamSpec('node_return_timeout', DOUBLE, 60.0, 'Seconds an episode stays paused for a '
+              'node it needs (belief, perception, skill servers) to come back before the '
+              'Recognize goal is aborted naming it.', (0.0, 3600.0)),
     ParamSpec('use_feasibility', BOOL, True, 'Ask abp/skills/check_feasibility before each '
               'decision; infeasible actions fall through to the next best.'),
     ParamSpec('planner_seed', INT, 0, 'Seed of the random planner.', (0, 2**31 - 1)),

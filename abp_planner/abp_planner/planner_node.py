@@ -41,6 +41,7 @@ from abp_msgs.srv import CheckFeasibility, ResetBelief
 
 from .episode import (
     ABORTED,
+    BELIEF_NODE,
     CANCELED,
     EpisodeRunner,
     RecognitionAborted,
@@ -85,10 +86,11 @@ class PlannerNode(Node):
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._mode = values['planner_mode']
 
-        self.create_subscription(Belief, names.BELIEF, self._on_belief, qos.LATCHED,
-                                 callback_group=self._group)
-        self.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
-                                 self._on_observation, qos.RELIABLE, callback_group=self._group)
+        self._belief_sub = self.create_subscription(
+            Belief, names.BELIEF, self._on_belief, qos.LATCHED, callback_group=self._group)
+        self._observation_sub = self.create_subscription(
+            AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
+            callback_group=self._group)
         self._plan_pub = self.create_publisher(PlanStep, names.PLAN, qos.RELIABLE)
         self._executed_pub = self.create_publisher(ExecutedAction, names.EXECUTED_ACTION,
                                                    qos.RELIABLE)
@@ -170,7 +172,8 @@ class PlannerNode(Node):
                                    planning_budget_s=params['planning_budget_s'] or None)
             stopping = RuleStop(self._stopping_rule(goal, params), self.model_set.num_nodes)
             runner = EpisodeRunner(planner, self, self.model_set.num_nodes, stopping,
-                                   params['observation_timeout'], self.get_logger())
+                                   params['observation_timeout'], self.get_logger(),
+                                   node_return_timeout_s=params['node_return_timeout'])
             started = self.get_clock().now()
             episode = runner.run()
             return self._finish(goal_handle, episode, started)
@@ -235,6 +238,21 @@ class PlannerNode(Node):
 
     def cancel_requested(self):
         return self._goal_handle.is_cancel_requested
+
+    def missing_nodes(self):
+        # DDS notices a killed process when its lease expires, so a node is seen gone
+        # some seconds after it died; the runner asks again before every decision.
+        missing = []
+        if self._belief_sub.get_publisher_count() == 0:
+            missing.append(BELIEF_NODE)
+        if self._observation_sub.get_publisher_count() == 0:
+            missing.append(f'aspect observations ({names.ASPECT_OBSERVATION})')
+        skills = [skill for skill, client in self._skill_clients.items()
+                  if not client.server_is_ready()]
+        if skills:
+            missing.append(f'skill server{"s" if len(skills) > 1 else ""} '
+                           f'({", ".join(names.skill_action(s) for s in skills)})')
+        return missing
 
     def check_feasibility(self):
         if not self._param('use_feasibility'):

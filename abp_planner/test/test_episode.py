@@ -10,6 +10,7 @@ import pytest
 from abp_belief.cube import ACTIONS
 from abp_planner.episode import (
     ABORTED,
+    BELIEF_NODE,
     CANCELED,
     FEASIBILITY_RETRY_S,
     SUCCEEDED,
@@ -67,8 +68,10 @@ class FakePorts:
     correction (+1). `observe=False` withholds observations."""
 
     def __init__(self, clock, gain=0.2, fail=(), feasible=None, observe=True,
-                 first_posterior=0.5, cancel_after=None):
+                 first_posterior=0.5, cancel_after=None, missing=None):
         self.clock = clock
+        self.missing = missing  # missing(ports) -> names of the nodes gone now
+        self.resets = 0
         self.gain = gain
         self.fail = set(fail)
         self.feasible = feasible if feasible is not None else {}
@@ -80,7 +83,11 @@ class FakePorts:
         self.feasibility_checks = 0
 
     def reset_belief(self):
+        self.resets += 1
         self.belief = belief(1 if self.observe else 0, self.first_posterior)
+
+    def missing_nodes(self):
+        return list(self.missing(self)) if self.missing else []
 
     def wait_for_belief(self, predicate, timeout_s):
         if self.belief is not None and predicate(self.belief):
@@ -117,12 +124,66 @@ class FakePorts:
         self.executed.append((action, sequence, success, reason))
 
 
-def run(ports, planner=None, threshold=0.95, max_actions=30, timeout=20.0):
+def run(ports, planner=None, threshold=0.95, max_actions=30, timeout=20.0, node_return=60.0):
     clock = ports.clock
     runner = EpisodeRunner(planner or FakePlanner(), ports, NUM_NODES,
                            PosteriorStop(threshold, max_actions), timeout,
-                           logging.getLogger('episode'), clock=clock, sleep=clock.sleep)
+                           logging.getLogger('episode'), clock=clock, sleep=clock.sleep,
+                           node_return_timeout_s=node_return)
     return runner.run()
+
+
+def test_a_lost_belief_node_pauses_the_episode_and_its_return_restarts_the_evidence():
+    clock = FakeClock()
+    # The belief node dies after the first action and is back 10 s later (respawned).
+    died = {}
+
+    def missing(ports):
+        if len(ports.executed) >= 1:
+            died.setdefault('at', clock())
+        return [BELIEF_NODE] if 'at' in died and clock() < died['at'] + 10.0 else []
+
+    ports = FakePorts(clock, gain=0.2, missing=missing)
+    result = run(ports)
+    assert result.outcome == SUCCEEDED and result.success
+    # Paused (no action during the 10 s), then re-observed from a reset belief.
+    assert ports.resets == 2 and clock() >= 10.0
+    assert result.actions_taken == 1 + 3  # the evidence of the first action was lost
+
+
+def test_a_belief_that_goes_back_means_a_restarted_belief_node():
+    # Respawned before DDS saw the old node go: no pause, but its belief starts again.
+    class Respawned(FakePorts):
+        def run_skill(self, action):
+            outcome = super().run_skill(action)
+            if len(self.skills) == 2:
+                self.belief = belief(0, 0.5)
+            return outcome
+
+    ports = Respawned(FakeClock(), gain=0.2)
+    result = run(ports)
+    assert result.outcome == SUCCEEDED and result.success
+    assert ports.resets == 2 and result.actions_taken == 2 + 3
+
+
+def test_a_node_that_does_not_come_back_aborts_the_goal_naming_it():
+    clock = FakeClock()
+    gone = 'skill server /abp/skills/push'
+    ports = FakePorts(clock, missing=lambda p: [gone] if p.executed else [])
+    result = run(ports, node_return=30.0)
+    assert result.outcome == ABORTED and not result.success
+    assert result.reason == f'{gone} gone and not back within 30 s'
+    assert result.actions_taken == 1 and 30.0 <= clock() <= 31.0
+    assert ports.resets == 1  # no belief node was lost: nothing to re-observe
+
+
+def test_cancel_while_paused_for_a_node_ends_the_goal_as_cancelled():
+    clock = FakeClock()
+    ports = FakePorts(clock, missing=lambda p: [BELIEF_NODE] if clock() < 5.0 else [])
+    ports.cancel_requested = lambda: clock() >= 2.0
+    result = run(ports)
+    assert result.outcome == CANCELED and result.reason == 'cancelled'
+    assert not ports.executed
 
 
 def test_stops_when_the_first_observation_is_enough():

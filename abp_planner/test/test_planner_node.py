@@ -4,6 +4,7 @@ real skill actions and publishes sampled aspect observations."""
 
 import os
 import pathlib
+import signal
 import subprocess
 import sys
 
@@ -31,15 +32,22 @@ def executable(package, name):
     return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
-def start_graph(ros_processes, true_model, fail_action='', infeasible=''):
-    params = ['--ros-args', '-p', 'model_set:=robot', '-p', f'seed:={SEED}']
-    ros_processes.start([executable('abp_belief', 'belief'), *params])
-    ros_processes.start([executable('abp_planner', 'planner'), *params,
-                         '-p', 'observation_timeout:=5.0'])
+PARAMS = ['--ros-args', '-p', 'model_set:=robot', '-p', f'seed:={SEED}']
+
+
+def start_belief(ros_processes):
+    return ros_processes.start([executable('abp_belief', 'belief'), *PARAMS])
+
+
+def start_graph(ros_processes, true_model, fail_action='', infeasible='', planner_params=()):
+    """Belief, planner and the model world; returns their processes by name."""
+    belief = start_belief(ros_processes)
+    planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
+                                   '-p', 'observation_timeout:=5.0', *planner_params])
     world = ros_processes.start([sys.executable, str(WORLD), 'robot', str(SEED),
                                  str(true_model), fail_action, infeasible])
     ros_processes.wait_for_line(world, 'READY', timeout=30)
-    return world
+    return {'belief': belief, 'planner': planner, 'world': world}
 
 
 @pytest.fixture
@@ -133,6 +141,46 @@ def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client,
     send = action_client.send_goal_async(Recognize.Goal(stopping_rule='eventually'))
     assert spin(executor, send.done, 10)
     assert not send.result().accepted
+
+
+def test_a_respawned_belief_node_is_reobserved_and_the_goal_still_succeeds(
+        ros_processes, client, spin, answering):
+    node, executor, action_client, executed, plans = client
+    graph = start_graph(ros_processes, 11)
+    assert answering(executor, action_client, 30)
+    send = action_client.send_goal_async(Recognize.Goal(planner_mode='abp', max_actions=30,
+                                                        posterior_threshold=0.99))
+    assert spin(executor, send.done, 10) and send.result().accepted
+    result = send.result().get_result_async()
+    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    # kill -9 (no goodbye on DDS), then a new belief node, as a respawning launcher does.
+    os.killpg(graph['belief'].pid, signal.SIGKILL)
+    graph['belief'].wait(timeout=10)
+    start_belief(ros_processes)
+    ros_processes.wait_for_line(graph['planner'], 're-observing', timeout=90)
+    assert spin(executor, result.done, 120), 'recognition did not finish'
+    response = result.result()
+    assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
+    assert response.result.object_id == robot_set(seed=SEED).names[11]
+
+
+def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client, spin,
+                                                          answering):
+    node, executor, action_client, executed, plans = client
+    graph = start_graph(ros_processes, 11, planner_params=['-p', 'node_return_timeout:=5.0'])
+    assert answering(executor, action_client, 30)
+    send = action_client.send_goal_async(Recognize.Goal(planner_mode='abp', max_actions=30,
+                                                        posterior_threshold=0.99))
+    assert spin(executor, send.done, 10) and send.result().accepted
+    result = send.result().get_result_async()
+    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    # The world serves the skills and the observations: both are gone for good.
+    os.killpg(graph['world'].pid, signal.SIGKILL)
+    assert spin(executor, result.done, 180), 'recognition did not end'
+    response = result.result()
+    assert response.status == GoalStatus.STATUS_ABORTED
+    assert 'gone and not back within 5 s' in response.result.reason
+    assert 'skill servers (abp/skills/' in response.result.reason
 
 
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):

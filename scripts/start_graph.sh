@@ -26,18 +26,23 @@
 #   --timeout S          wall-clock limit of the recognition (default 1800)
 #   --log-dir DIR        where node logs go (default log/graph-<time>)
 #   --no-build           skip scripts/bootstrap.sh (use install/ as it is)
+#   --no-respawn         do not restart a node that dies (by default a node that dies is
+#                        restarted, unless it stopped cleanly, exited with a configuration
+#                        error, or died 3 times within 10 s of starting)
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
-usage() { sed -n '2,28p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+respawn=1
+usage() { sed -n '2,31p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --robot) robot=1; shift ;;
     --world) world="${2:?--world needs a value}"; shift 2 ;;
     --no-build) build=0; shift ;;
+    --no-respawn) respawn=0; shift ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
@@ -115,12 +120,44 @@ cleanup() {
       [ "$alive" = 0 ] && break
       sleep 0.1
     done
+    # A supervisor killed outright would leave its node behind: the nodes go first.
+    for pid in "${pids[@]}"; do pkill -KILL -P "$pid" 2>/dev/null || true; done
     kill -KILL "${pids[@]}" 2>/dev/null || true
     wait 2>/dev/null || true
   fi
 }
 trap cleanup EXIT
 trap 'exit 130' INT TERM
+
+# supervise NAME LOG CMD...: run CMD, appending to LOG; with respawn on, run it again when
+# it dies. Exit code 0 (stopped) and 2 (configuration error: a restart cannot fix it) end
+# the loop, and so does a third death within 10 s of starting (a crash loop). On
+# SIGINT/SIGTERM it passes the signal on to the node and ends with it.
+supervise() {
+  local name="$1" log="$2"; shift 2
+  local child="" stopping=0 quick_deaths=0 restarts=0 rc started
+  trap 'stopping=1; [ -n "$child" ] && kill -INT "$child" 2>/dev/null' INT TERM
+  while true; do
+    started=$SECONDS
+    "$@" >> "$log" 2>&1 &
+    child=$!
+    rc=0
+    # `wait` returns early when a trapped signal arrives: wait again for the node itself.
+    wait "$child" || rc=$?
+    while kill -0 "$child" 2>/dev/null; do wait "$child" || rc=$?; done
+    if [ "$stopping" = 1 ] || [ "$respawn" = 0 ] || [ "$rc" = 0 ] || [ "$rc" = 2 ]; then
+      exit "$rc"
+    fi
+    if [ $((SECONDS - started)) -lt 10 ]; then quick_deaths=$((quick_deaths + 1)); else quick_deaths=0; fi
+    if [ "$quick_deaths" -ge 3 ]; then
+      echo "[start_graph] $name died 3 times within 10 s of starting (exit code $rc): not restarting it; see $log" | tee -a "$log" >&2
+      exit "$rc"
+    fi
+    restarts=$((restarts + 1))
+    echo "[start_graph] $name exited with code $rc; restarting it (restart $restarts)" | tee -a "$log" >&2
+    sleep 1
+  done
+}
 
 # start PACKAGE EXECUTABLE [ros args...]: ros2 run where available, else the installed file.
 start() {
@@ -131,12 +168,10 @@ start() {
   local ros_args=(--ros-args --params-file "$config" --params-file "$model_params")
   [ -n "$params" ] && ros_args+=(--params-file "$params")
   ros_args+=("${ns_args[@]}" "${sim_time[@]}" "$@")
-  if command -v ros2 >/dev/null 2>&1; then
-    ros2 run "$package" "$executable" "${ros_args[@]}" > "$log_dir/$executable.log" 2>&1 &
-  else
-    "$REPO/install/$package/lib/$package/$executable" "${ros_args[@]}" \
-      > "$log_dir/$executable.log" 2>&1 &
-  fi
+  local command=("$REPO/install/$package/lib/$package/$executable")
+  command -v ros2 >/dev/null 2>&1 && command=(ros2 run "$package" "$executable")
+  : > "$log_dir/$executable.log"
+  supervise "$executable" "$log_dir/$executable.log" "${command[@]}" "${ros_args[@]}" &
   pids+=("$!")
 }
 

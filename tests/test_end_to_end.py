@@ -14,6 +14,7 @@ Each case names its world: `rules` (contact rules, flat renderer: fast) for the 
 import json
 import os
 import pathlib
+import signal
 import subprocess
 
 import pytest
@@ -69,7 +70,41 @@ def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, world, mass
     assert not graph_processes(), 'start_graph.sh left processes behind'
 
 
-def graph_processes():
+def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp_path):
+    models = robot_set(seed=SEED)
+    index = next(i for i in range(models.num_models) if models.mass[i] == 0)
+    result_file, log_dir = tmp_path / 'result.json', tmp_path / 'logs'
+    graph = subprocess.Popen(
+        [str(REPO / 'scripts' / 'start_graph.sh'), '--no-build', '--world', 'rules', '--seed',
+         str(SEED), '--object', str(index), '--result-json', str(result_file), '--log-dir',
+         str(log_dir), '--timeout', '600'],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        trace = []
+        for line in graph.stdout:  # the event: the first action is done
+            trace.append(line)
+            if line.startswith('action 1 '):
+                break
+        belief = [pid for pid, cmdline in graph_processes(with_pids=True)
+                  if '/lib/abp_belief/belief ' in cmdline and str(log_dir) in cmdline]
+        assert len(belief) == 1, ''.join(trace)
+        os.kill(belief[0], signal.SIGKILL)
+        trace += graph.stdout.readlines()
+        graph.wait(timeout=900)
+    finally:
+        if graph.poll() is None:
+            os.killpg(graph.pid, signal.SIGKILL)
+    trace = ''.join(trace)
+    assert graph.returncode == 0, trace
+    assert 'belief exited with code 137; restarting it (restart 1)' in trace
+    planner_log = (log_dir / 'planner.log').read_text()
+    assert 're-observing' in planner_log, planner_log
+    result = json.loads(result_file.read_text())
+    assert result['correct'] and result['object_id'] == models.names[index], trace
+    assert not graph_processes(), 'start_graph.sh left processes behind'
+
+
+def graph_processes(with_pids=False):
     """abp executables still running on this test session's ROS domain."""
     domain = f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}".encode()
     found = []
@@ -80,5 +115,6 @@ def graph_processes():
         except OSError:
             continue
         if b'/install/abp_' in cmdline and domain in environ.split(b'\0'):
-            found.append(cmdline.replace(b'\0', b' ').decode(errors='replace'))
+            text = cmdline.replace(b'\0', b' ').decode(errors='replace')
+            found.append((int(proc.name), text) if with_pids else text)
     return found

@@ -39,14 +39,17 @@ def wait_until_answering(action_client, spin_until, timeout, probe_timeout=PROBE
     true or the time is up, and returns `predicate()`: the loop of a single-threaded
     client. A multi-threaded caller waits on `ask_action_server`'s future instead."""
     deadline = time.monotonic() + timeout
+    # Unanswered probes stay pending: a late answer to a forgotten one would make rclpy
+    # warn of "more than one action server". Any answer will do.
+    probes = []
     while True:
         remaining = deadline - time.monotonic()
         if remaining <= 0 or not spin_until(action_client.server_is_ready, remaining):
             return False
-        probe = ask_action_server(action_client)
-        if spin_until(probe.done, max(0.05, min(probe_timeout, deadline - time.monotonic()))):
+        probes.append(ask_action_server(action_client))
+        if spin_until(lambda: any(p.done() for p in probes),
+                      max(0.05, min(probe_timeout, deadline - time.monotonic()))):
             return True
-        probe.cancel()  # lost in discovery: forget it and ask again
 
 
 __all__ = ['PROBE_TIMEOUT_S', 'ask_action_server', 'wait_until_answering']

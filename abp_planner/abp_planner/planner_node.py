@@ -84,6 +84,7 @@ class PlannerNode(Node):
         self._cube_pose = None
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
+        self._known_belief_publishers = set()  # endpoint gids met in this episode
         self._mode = values['planner_mode']
 
         self._belief_sub = self.create_subscription(
@@ -215,6 +216,7 @@ class PlannerNode(Node):
 
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
     def reset_belief(self):
+        self._known_belief_publishers = self._belief_publishers()
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
         response = self._call(self._reset, ResetBelief.Request(), 10.0)
@@ -239,11 +241,20 @@ class PlannerNode(Node):
     def cancel_requested(self):
         return self._goal_handle.is_cancel_requested
 
+    def _belief_publishers(self):
+        topic = names.absolute(names.BELIEF, self.get_namespace())
+        return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
+
     def missing_nodes(self):
-        # DDS notices a killed process when its lease expires, so a node is seen gone
-        # some seconds after it died; the runner asks again before every decision.
+        # DDS notices a killed process when its lease expires (~20 s), so a node is seen
+        # gone some seconds after it died; the runner asks again before every decision.
+        # A respawned belief node can appear before the dead one is seen gone: a belief
+        # publisher the episode has not met counts as the old one lost (once).
         missing = []
-        if self._belief_sub.get_publisher_count() == 0:
+        publishers = self._belief_publishers()
+        new = publishers - self._known_belief_publishers
+        self._known_belief_publishers |= publishers
+        if not publishers or new:
             missing.append(BELIEF_NODE)
         if self._observation_sub.get_publisher_count() == 0:
             missing.append(f'aspect observations ({names.ASPECT_OBSERVATION})')

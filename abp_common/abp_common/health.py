@@ -83,10 +83,10 @@ class NodeHealth:
         else:
             self.node.get_logger().warning(line)
 
-    def stamp_check(self, zero_is_now=False):
-        """A StampCheck with this node's limits (one per input topic)."""
+    def stamp_check(self, zero_is_now=False, trust_clock=False):
+        """A StampCheck with this node's limits (one per stream of stamps)."""
         return StampCheck(self.values['max_stamp_future'], self.values['max_stamp_lag'],
-                          zero_is_now=zero_is_now)
+                          zero_is_now=zero_is_now, trust_clock=trust_clock)
 
     def now_ns(self):
         return self.node.get_clock().now().nanoseconds

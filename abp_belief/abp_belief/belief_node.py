@@ -48,7 +48,7 @@ class BeliefNode(Node):
         self.model_set_id = fingerprint(self.model_set)
         self.step = 0
         self._gate = EvidenceGate(values['correct_once_per_action'])
-        self._frames = (values['base_frame'],)
+        self._frames = ('', values['base_frame'])   # '': the base frame (unset)
         self.health = NodeHealth(self)
         # One stream of time: observations guard the actions' stamps and the reverse.
         self._stamps = self.health.stamp_check()

@@ -28,6 +28,7 @@ setup(
             'recognize = abp_bringup.recognize_client:main',
             'bag_recorder = abp_bringup.bag_recorder_node:main',
             'bag_player = abp_bringup.bag_player:main',
+            'health = abp_bringup.health:main',
         ],
     },
 )

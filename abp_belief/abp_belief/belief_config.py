@@ -2,7 +2,7 @@
 `model_set_config.MODEL_SET_SPECS`). The node declares both with
 `abp_common.parameters.declare_all`."""
 
-from abp_common.param_spec import BOOL, DOUBLE, INT, ParamSpec
+from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
 
 BELIEF_SPECS = (
     ParamSpec('top_k', INT, 10, 'Number of objects and aspect nodes listed in /abp/belief.',
@@ -12,6 +12,8 @@ BELIEF_SPECS = (
               'rest).', (0.0, 1e-3)),
     ParamSpec('correct_once_per_action', BOOL, True, 'Use only the first observation after '
               'each executed action (true), or every observation message (false).'),
+    ParamSpec('base_frame', STRING, 'base_link', 'Frame of the aspect observations (the '
+              "aspect matcher's base_frame); observations in another frame are rejected."),
 )
 
 __all__ = ['BELIEF_SPECS']

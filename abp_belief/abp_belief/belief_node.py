@@ -5,7 +5,10 @@ Subscribes:  abp/aspect_observation (abp_msgs/AspectObservation)
 Publishes:   abp/belief             (abp_msgs/Belief, latched: late joiners get the latest)
 Services:    abp/reset_belief       (abp_msgs/ResetBelief)
 
-(Names are relative: /abp/... without a namespace.) The science lives in
+(Names are relative: /abp/... without a namespace.) Inputs are checked before they reach
+the evidence gate (`abp_common.input_checks`, and the model set's observation check): a
+malformed observation or an unknown action is rejected, counted in /diagnostics
+(`abp_common.health`) and logged at most once per few seconds per kind. The science lives in
 `abp_belief.filter` / `abp_belief.modelset`, the choice of which observation corrects
 in `abp_belief.evidence_gate`; this module only converts messages and parameters.
 """
@@ -17,7 +20,9 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 
-from abp_common import names, qos
+from abp_common import input_checks, names, qos
+from abp_common.health import NodeHealth
+from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
@@ -43,11 +48,15 @@ class BeliefNode(Node):
         self.model_set_id = fingerprint(self.model_set)
         self.step = 0
         self._gate = EvidenceGate(values['correct_once_per_action'])
+        self._frames = ('', values['base_frame'])   # '': the base frame (unset)
+        self.health = NodeHealth(self)
+        # One stream of time: observations guard the actions' stamps and the reverse.
+        self._stamps = self.health.stamp_check()
         self._belief_pub = self.create_publisher(Belief, names.BELIEF, qos.LATCHED)
-        self.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
-                                 self._on_observation, INPUTS)
-        self.create_subscription(ExecutedAction, names.EXECUTED_ACTION,
-                                 self._on_executed_action, INPUTS)
+        self.health.subscribe(AspectObservation, names.ASPECT_OBSERVATION,
+                              self._on_observation, INPUTS)
+        self.health.subscribe(ExecutedAction, names.EXECUTED_ACTION,
+                              self._on_executed_action, INPUTS)
         self.create_service(ResetBelief, names.RESET_BELIEF, self._on_reset)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -75,34 +84,45 @@ class BeliefNode(Node):
 
     # -- callbacks ----------------------------------------------------------------
     def _on_observation(self, msg: AspectObservation):
+        """Raises input_checks.Rejected for a malformed observation (NodeHealth counts it)."""
+        input_checks.aspect_observation(msg, self._frames)
+        self._stamps.check(msg.header.stamp, self.health.now_ns())
+        if msg.hypotheses:
+            z = _observation_of(msg)
+            try:
+                self.model_set.observation.normalize_observation(z)
+            except ValueError as error:
+                raise Rejected('out_of_range', str(error)) from None
+        self._stamps.taken(msg.header.stamp)
         if not msg.hypotheses:
             self.get_logger().debug('observation without aspect hypotheses: nothing to correct')
             return
-        if self._gate.offer(_stamp_ns(msg.header.stamp), msg):
-            self._correct(msg)
+        with self.health.timed():
+            if self._gate.offer(_stamp_ns(msg.header.stamp), msg):
+                self._correct(msg)
 
     def _correct(self, msg: AspectObservation):
-        best = msg.hypotheses[0]
-        z = (int(best.aspect_type), *(int(s) for s in best.slots))
-        if z[0] == 2:
-            z = (*z[:3], -1)
+        z = _observation_of(msg)
         try:
             self.filter.correct(z)
         except (ValueError, BeliefUpdateError) as error:
-            self.get_logger().warning(f'observation {z} ignored: {error}')
+            self.health.reject(names.ASPECT_OBSERVATION, 'no_likelihood',
+                               f'observation {z} ignored: {error}')
             return
         self._gate.corrected()
         self.step += 1
         self._publish_belief(msg.header.stamp)
 
     def _on_executed_action(self, msg: ExecutedAction):
-        known = msg.action in ACTIONS
-        early = self._gate.action_executed(_stamp_ns(msg.header.stamp), known)
-        if not known:
-            self.get_logger().warning(
-                f'executed action {msg.action!r} is unknown (expected one of '
-                f'{", ".join(ACTIONS)}); belief not predicted')
-            return
+        """Raises input_checks.Rejected for an unknown action or a bad stamp: such a
+        message neither predicts nor moves the evidence gate."""
+        if msg.action not in ACTIONS:
+            shown = msg.action if len(msg.action) <= 40 else msg.action[:40] + '...'
+            raise Rejected('unknown_id', f'executed action {shown!r} is unknown (expected one '
+                                         f'of {", ".join(ACTIONS)}); belief not predicted')
+        self._stamps.check(msg.header.stamp, self.health.now_ns())
+        self._stamps.taken(msg.header.stamp)
+        early = self._gate.action_executed(_stamp_ns(msg.header.stamp))
         if not msg.success:
             # The skill did not run to completion: the cube was not acted on as modelled.
             self.get_logger().info(f'{msg.action} failed ({msg.reason}); no prediction step')
@@ -160,6 +180,13 @@ class BeliefNode(Node):
         msg.node_floor = floor
         msg.model_set_id = self.model_set_id
         self._belief_pub.publish(msg)
+
+
+def _observation_of(msg):
+    """The observation tuple z = (type, s0, s1, s2) of the best hypothesis."""
+    best = msg.hypotheses[0]
+    z = (int(best.aspect_type), *(int(s) for s in best.slots))
+    return (*z[:3], -1) if z[0] == 2 else z
 
 
 def _stamp_ns(stamp):

@@ -88,6 +88,10 @@ class RobotKinematics:
                 q_pin[iq] = q[i]
         return q_pin
 
+    def has_joint(self, name):
+        """True when `name` is one of the robot's joints."""
+        return name in self.joint_names
+
     def has_frame(self, name):
         return self.model.existFrame(name)
 

@@ -16,16 +16,18 @@ Topic names are relative (abp_common.names): under a namespace the node reads an
 writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
 The science lives in `abp_perception.detector`; the camera pose in the base frame comes
 from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, no tf2).
-Frames are rejected, never crash the node, with a throttled warning that says why and
-how many frames were rejected for that reason so far (`ArtagDetectorNode.rejected`):
-no camera_info yet (`no_camera_info`), a size other than camera_info's, both sizes named
-(`size`), an unsupported encoding or compressed format (`encoding`), a compressed
-payload that does not decode (`decode`), or an image the detector refuses (`image`).
+Inputs are rejected, never crash the node, counted in /diagnostics by topic and kind
+(`abp_common.health`) and logged at most once per few seconds per kind, saying why and
+how many so far. Frames: no camera_info yet (`no_camera_info`), a size other than
+camera_info's, both sizes named (`size`), size, step and data length that disagree
+(`size_mismatch`), an unsupported encoding or compressed format (`encoding`), a
+compressed payload that does not decode (`decode`), a frame id that is not in the URDF
+(`frame`), a stamp from the past or the future (`stamp_past`, `stamp_future`), or an
+image the detector refuses (`image`). camera_info and joint_states: the kinds of
+`abp_common.input_checks`.
 """
 
 import sys
-import time
-from collections import Counter
 
 import cv2
 import numpy as np
@@ -34,7 +36,9 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 
-from abp_common import names, qos
+from abp_common import input_checks, names, qos
+from abp_common.health import NodeHealth
+from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation
@@ -44,6 +48,7 @@ from abp_msgs.msg import TagDetection, TagDetectionArray
 from .detector import (
     ImageDecodeError,
     ImageEncodingError,
+    ImageLayoutError,
     ImageSizeError,
     TagDetector,
     check_image_size,
@@ -53,7 +58,8 @@ from .detector import (
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
 THROTTLE_S = 5.0
-DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', '')
+# distortion model -> the numbers of coefficients it takes ('' = none given)
+DISTORTION_MODELS = {'plumb_bob': (0, 4, 5), 'rational_polynomial': (0, 8), '': (0,)}
 COMPRESSED_SUFFIX = '/compressed'     # image_transport's topic of the compressed transport
 
 
@@ -71,24 +77,22 @@ class ArtagDetectorNode(Node):
         self.detector = None                 # built at the first camera_info
         self._camera_key = None
         self._joints = None
-        self._warned_frames = set()
-        self.rejected = Counter()            # reason -> frames rejected so far
-        self._last_reject_log = {}           # reason -> time.monotonic() of its last line
+        self.health = NodeHealth(self)
+        self._image_stamps = self.health.stamp_check()
         self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
                                           qos.RELIABLE)
         self.image_transport = self._values['image_transport']
         if self.image_transport == 'compressed':
             self.image_topic = names.IMAGE + COMPRESSED_SUFFIX
-            self.create_subscription(CompressedImage, self.image_topic,
-                                     self._on_compressed_image, qos.SENSOR_DATA)
+            self.health.subscribe(CompressedImage, self.image_topic,
+                                  self._on_compressed_image, qos.SENSOR_DATA)
         else:
             self.image_topic = names.IMAGE
-            self.create_subscription(Image, self.image_topic, self._on_image,
-                                     qos.SENSOR_DATA)
-        self.create_subscription(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
-                                 qos.SENSOR_DATA)
-        self.create_subscription(JointState, names.JOINT_STATES, self._on_joint_state,
-                                 qos.SENSOR_DATA)
+            self.health.subscribe(Image, self.image_topic, self._on_image, qos.SENSOR_DATA)
+        self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
+                              qos.SENSOR_DATA)
+        self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,
+                              qos.SENSOR_DATA)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m "
@@ -122,15 +126,24 @@ class ArtagDetectorNode(Node):
 
     # -- callbacks ----------------------------------------------------------------
     def _on_camera_info(self, msg: CameraInfo):
+        """Raises input_checks.Rejected for a malformed camera_info (NodeHealth counts it)."""
         k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
         d = np.asarray(msg.d, dtype=np.float64)
-        key = (tuple(k.ravel()), tuple(d), msg.distortion_model)
         if msg.distortion_model not in DISTORTION_MODELS:
-            self.get_logger().warning(
-                f"camera_info distortion model {msg.distortion_model!r} is not supported "
-                f"(use {', '.join(m for m in DISTORTION_MODELS if m)}); images skipped",
-                throttle_duration_sec=THROTTLE_S)
-            return
+            raise Rejected('unknown_id', f'distortion model {msg.distortion_model[:40]!r} is '
+                                         'not supported (use '
+                                         f"{', '.join(m for m in DISTORTION_MODELS if m)})")
+        if d.size not in DISTORTION_MODELS[msg.distortion_model]:
+            raise Rejected('size_mismatch', f'{d.size} distortion coefficients for '
+                                            f'{msg.distortion_model!r}')
+        input_checks.finite('camera matrix K', k)
+        input_checks.finite('distortion coefficients', d)
+        if k[0, 0] <= 0 or k[1, 1] <= 0:
+            raise Rejected('empty', 'camera matrix K without positive focal lengths')
+        if msg.header.frame_id and not self.kinematics.has_frame(msg.header.frame_id):
+            raise Rejected('frame', f'camera_info frame {msg.header.frame_id[:40]!r} is not in '
+                                    'the URDF')
+        key = (tuple(k.ravel()), tuple(d), msg.distortion_model)
         # A camera_info without a size (0 x 0) leaves the image size unchecked.
         size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
         key += (size,)
@@ -139,84 +152,67 @@ class ArtagDetectorNode(Node):
         try:
             self.detector = self._build_detector(self._config, k, d if d.size else None, size)
         except ValueError as error:
-            self.get_logger().warning(f'camera_info refused: {error}; images skipped',
-                                      throttle_duration_sec=THROTTLE_S)
-            return
+            raise Rejected('out_of_range', f'camera_info refused: {error}') from None
         self._camera_key = key
 
     def _on_joint_state(self, msg: JointState):
-        if len(msg.name) != len(msg.position):
-            self.get_logger().warning('joint_states with names and positions of different '
-                                      'lengths ignored', throttle_duration_sec=THROTTLE_S)
-            return
+        input_checks.joint_state(msg)
         joints = dict(zip(msg.name, msg.position))
+        if not any(self.kinematics.has_joint(n) for n in joints):
+            raise Rejected('unknown_id', 'joint_states names no joint of the robot')
         self._joints = self.kinematics.q_from_mapping(
             joints, default=self._joints if self._joints is not None else None)
 
-    def _reject(self, reason, text, error=False):
-        """Count a rejected frame and say why, at most once per THROTTLE_S per reason
-        (rclpy's own throttle is per call site: one reason would hide the others)."""
-        self.rejected[reason] += 1
-        now = time.monotonic()
-        if now - self._last_reject_log.get(reason, -np.inf) < THROTTLE_S:
-            return
-        self._last_reject_log[reason] = now
-        n = self.rejected[reason]
-        line = f'{text}: frame rejected ({n} {reason} rejection{"s" if n > 1 else ""} so far)'
-        # Two call sites: rclpy refuses one call site logging at two severities.
-        if error:
-            self.get_logger().error(line)
-        else:
-            self.get_logger().warning(line)
-
     def _ready(self):
         if self.detector is None:
-            self._reject('no_camera_info', 'no valid camera_info on '
-                         f'{self.resolve_topic_name(names.CAMERA_INFO)} yet')
-            return False
-        return True
+            raise Rejected('no_camera_info', 'no valid camera_info on '
+                                             f'{self.resolve_topic_name(names.CAMERA_INFO)} yet')
+
+    def _check_header(self, header):
+        if header.frame_id and not self.kinematics.has_frame(header.frame_id):
+            raise Rejected('frame', f'image frame {header.frame_id[:40]!r} is not in the URDF')
+        self._image_stamps.check(header.stamp, self.health.now_ns())
 
     def _on_image(self, msg: Image):
-        if not self._ready():
-            return
+        """Raises input_checks.Rejected for a frame it cannot use (NodeHealth counts it)."""
+        self._ready()
+        self._check_header(msg.header)
         try:
             # Before converting: a mismatched frame costs nothing.
             check_image_size(msg.width, msg.height, self.detector.image_size)
             gray = image_msg_to_gray(msg)
         except ImageSizeError as error:
-            self._reject('size', str(error))
-            return
+            raise Rejected('size', str(error)) from None
+        except ImageLayoutError as error:
+            raise Rejected('size_mismatch', str(error)) from None
         except ImageEncodingError as error:
-            self._reject('encoding', str(error), error=True)
-            return
+            raise Rejected('encoding', str(error)) from None
+        self._image_stamps.taken(msg.header.stamp)
         self._detect_and_publish(gray, msg.header)
 
     def _on_compressed_image(self, msg: CompressedImage):
-        if not self._ready():
-            return
+        self._ready()
+        self._check_header(msg.header)
         try:
             gray = compressed_msg_to_gray(msg)
         except ImageDecodeError as error:
-            self._reject('decode', str(error))
-            return
+            raise Rejected('decode', str(error)) from None
         except ImageEncodingError as error:
-            self._reject('encoding', str(error), error=True)
-            return
+            raise Rejected('encoding', str(error)) from None
+        self._image_stamps.taken(msg.header.stamp)
         self._detect_and_publish(gray, msg.header)
 
     def _detect_and_publish(self, gray, header):
         try:
-            result = self.detector.detect(gray)
+            with self.health.timed():
+                result = self.detector.detect(gray)
         except ImageSizeError as error:
-            self._reject('size', str(error))
-            return
+            raise Rejected('size', str(error)) from None
         except ValueError as error:
-            self._reject('image', str(error))
-            return
+            raise Rejected('image', str(error)) from None
         except cv2.error as error:                # not expected: a frame never ends the node
-            self._reject('image', f'OpenCV failed on the image: {error.msg.strip()}',
-                         error=True)
-            return
+            raise Rejected('image', f'OpenCV failed on the image: {error.msg.strip()}') \
+                from None
         for dropped in result.dropped:
             self.get_logger().debug(f'tag {dropped.tag_id} dropped: {dropped.reason}')
         frame = self._camera_frame_of(header.frame_id)
@@ -232,13 +228,8 @@ class ArtagDetectorNode(Node):
         self._pub.publish(self._to_msg(result, header, out_frame))
 
     def _camera_frame_of(self, frame_id):
-        if frame_id and self.kinematics.has_frame(frame_id):
-            return frame_id
-        if frame_id not in self._warned_frames:
-            self._warned_frames.add(frame_id)
-            self.get_logger().warning(f'image frame {frame_id!r} is not in the URDF; using '
-                                      f'{self.camera_frame}')
-        return self.camera_frame
+        """The image's frame (checked to be in the URDF), or camera_frame when it has none."""
+        return frame_id or self.camera_frame
 
     @staticmethod
     def _to_msg(result, header, frame):

@@ -8,8 +8,12 @@ Topic names are relative (abp_common.names). The model set is chosen by the same
 parameters as the belief node (abp_belief.model_set_config.MODEL_SET_SPECS), so both
 agree on the aspects; the matcher's own are `node_parameters.MATCHER_SPECS`. The science
 lives in `abp_perception.matcher`. Detections that are not in `base_frame` (the detector
-had no joint states yet) are skipped with a throttled warning: the view frame needs the
-robot base's position.
+had no joint states yet) are skipped: the view frame needs the robot base's position.
+Malformed arrays (oversized, stamps from the past or the future) and single detections
+that are malformed (non-finite pose or covariance, a zero quaternion, a tag id outside
+the model set) are rejected, counted in /diagnostics and logged at most once per few
+seconds per kind (`abp_common.health`); an array whose every detection was rejected
+publishes nothing.
 """
 
 import sys
@@ -25,7 +29,9 @@ from abp_belief.model_set_config import (
     MODEL_SET_SPECS,
     model_set_from_values,
 )
-from abp_common import names, qos
+from abp_common import input_checks, names, qos
+from abp_common.health import NodeHealth
+from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation, rotation_from_quaternion
@@ -35,7 +41,7 @@ from .matcher import AspectMatcher, normal_sigma_of
 from .matcher import Feature as MatchFeature
 from .node_parameters import MATCHER_PARAMETERS, MATCHER_SPECS, matcher_options
 
-THROTTLE_S = 5.0
+MAX_DETECTIONS = input_checks.MAX_FEATURES
 
 
 class AspectMatcherNode(Node):
@@ -47,10 +53,12 @@ class AspectMatcherNode(Node):
         self.base_frame = values['base_frame']
         self._config = {name: values[name] for name in MATCHER_PARAMETERS}
         self.matcher = self._build_matcher(self._config)
+        self.health = NodeHealth(self)
+        self._stamps = self.health.stamp_check()
         self._pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
                                           qos.RELIABLE)
-        self.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, self._on_detections,
-                                 qos.RELIABLE)
+        self.health.subscribe(TagDetectionArray, names.TAG_DETECTIONS, self._on_detections,
+                              qos.RELIABLE)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f'matching against {len(self.model_set.aspects)} aspects of '
@@ -80,29 +88,40 @@ class AspectMatcherNode(Node):
 
     # -- callbacks ----------------------------------------------------------------
     def _on_detections(self, msg: TagDetectionArray):
+        """Raises input_checks.Rejected for a malformed array (NodeHealth counts it)."""
         if msg.header.frame_id != self.base_frame:
-            self.get_logger().warning(
-                f'tag detections in frame {msg.header.frame_id!r}, need {self.base_frame!r} '
-                f'(does the detector get {self.resolve_topic_name(names.JOINT_STATES)}?): '
-                'skipped',
-                throttle_duration_sec=THROTTLE_S)
-            return
+            raise Rejected('frame', f'tag detections in frame {msg.header.frame_id!r}, need '
+                                    f'{self.base_frame!r} (does the detector get '
+                                    f'{self.resolve_topic_name(names.JOINT_STATES)}?)')
+        input_checks.at_most('detections', len(msg.detections), MAX_DETECTIONS)
+        self._stamps.check(msg.header.stamp, self.health.now_ns())
+        self._stamps.taken(msg.header.stamp)
         features = []
         for det in msg.detections:
             try:
-                features.append(self._feature(det))
-            except ValueError as error:       # a zero or non-finite orientation quaternion
-                self.get_logger().warning(f'tag {det.id} skipped: {error}',
-                                          throttle_duration_sec=THROTTLE_S)
-        result = self.matcher.match(features)
+                features.append(self._feature(det, self.model_set.n_tags))
+            except Rejected as rejected:
+                self.health.reject(names.TAG_DETECTIONS, rejected.kind,
+                                   f'tag {det.id} skipped: {rejected.detail}')
+        if msg.detections and not features:
+            return
+        with self.health.timed():
+            result = self.matcher.match(features)
         if result.ignored_ids:
             self.get_logger().debug(f'ignored tag ids outside the model set: '
                                     f'{result.ignored_ids}')
         self._pub.publish(self._to_msg(msg.header, features, result))
 
     @staticmethod
-    def _feature(det):
+    def _feature(det, n_tags):
+        """The matcher's feature of one detection; Rejected when it is malformed."""
+        if not 0 <= det.id < n_tags:
+            raise Rejected('unknown_id', f'tag id {det.id} is not in the model set '
+                                         f'(0..{n_tags - 1})')
         p = det.pose.pose
+        input_checks.pose('pose', p)
+        input_checks.finite('pose covariance', det.pose.covariance)
+        input_checks.finite('confidence', (det.confidence,))
         rot = rotation_from_quaternion(p.orientation.x, p.orientation.y, p.orientation.z,
                                        p.orientation.w)
         cov6 = np.asarray(det.pose.covariance, dtype=np.float64).reshape(6, 6)

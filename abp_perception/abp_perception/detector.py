@@ -77,7 +77,7 @@ import numpy as np
 from .corners import decode_quads, quad_areas, refine_quads
 
 __all__ = [
-    'ImageEncodingError', 'ImageDecodeError', 'ImageSizeError', 'image_to_gray',
+    'ImageEncodingError', 'ImageDecodeError', 'ImageLayoutError', 'ImageSizeError', 'image_to_gray',
     'image_msg_to_gray', 'compressed_image_to_gray', 'compressed_msg_to_gray',
     'parse_compressed_format', 'check_image_size', 'SUPPORTED_ENCODINGS',
     'DICTIONARY_NAMES', 'dictionary_id', 'dictionary_name', 'marker_object_points', 'Detection',
@@ -126,6 +126,10 @@ class ImageEncodingError(ValueError):
     """The image cannot be converted (unsupported encoding or inconsistent buffer)."""
 
 
+class ImageLayoutError(ImageEncodingError):
+    """An image whose size, step and data length disagree."""
+
+
 class ImageDecodeError(ImageEncodingError):
     """A compressed image payload that does not decode (corrupt, truncated, empty)."""
 
@@ -154,16 +158,16 @@ def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
     channels, conversion = _ENCODINGS[encoding]
     height, width, step = int(height), int(width), int(step)
     if height <= 0 or width <= 0:
-        raise ImageEncodingError(f'empty image ({width} x {height})')
+        raise ImageLayoutError(f'empty image ({width} x {height})')
     if step < width * channels:
-        raise ImageEncodingError(
+        raise ImageLayoutError(
             f'step {step} is smaller than width x channels = {width * channels} for {encoding}')
     try:
         buf = np.frombuffer(memoryview(data), dtype=np.uint8)
     except TypeError:
         buf = np.asarray(data, dtype=np.uint8).reshape(-1)
-    if buf.size < step * height:
-        raise ImageEncodingError(
+    if buf.size != step * height:
+        raise ImageLayoutError(
             f'image data has {buf.size} bytes, expected step x height = {step * height}')
     rows = buf[:step * height].reshape(height, step)[:, :width * channels]
     if channels == 1:

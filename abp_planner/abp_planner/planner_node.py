@@ -11,7 +11,10 @@ Uses:           abp/skills/{orbit,push,lift,flip} actions, abp/skills/check_feas
 (Names are relative: /abp/... without a namespace.) The decision is
 `abp_planner.planner`, the episode (stop, re-plan, retry, wait for evidence)
 `abp_planner.episode.EpisodeRunner`; this module moves messages and implements the
-runner's `EpisodePorts` for the goal being executed.
+runner's `EpisodePorts` for the goal being executed. A belief that is not over this
+model set or is malformed (`check_belief`), and malformed observations, are rejected,
+counted in /diagnostics and logged at most once per few seconds per kind
+(abp_common.health); the planner keeps the last good belief.
 """
 
 import queue
@@ -31,7 +34,9 @@ from visualization_msgs.msg import MarkerArray
 from abp_belief.cube import ACTIONS
 from abp_belief.model_file import ModelFileError, fingerprint
 from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
-from abp_common import names, qos
+from abp_common import input_checks, names, qos
+from abp_common.health import NodeHealth
+from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_common.server_handshake import PROBE_TIMEOUT_S, ask_action_server
@@ -86,10 +91,15 @@ class PlannerNode(Node):
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
         self._mode = values['planner_mode']
+        self.health = NodeHealth(self)
+        self._belief_stamps = self.health.stamp_check()
+        self._observation_stamps = self.health.stamp_check()
 
-        self._belief_sub = self.create_subscription(
-            Belief, names.BELIEF, self._on_belief, qos.LATCHED, callback_group=self._group)
-        self._observation_sub = self.create_subscription(
+        # A deep reader: a burst on the topic must not push out the belief not yet taken.
+        self._belief_sub = self.health.subscribe(
+            Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
+            callback_group=self._group)
+        self._observation_sub = self.health.subscribe(
             AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
             callback_group=self._group)
         self._plan_pub = self.create_publisher(PlanStep, names.PLAN, qos.RELIABLE)
@@ -127,18 +137,24 @@ class PlannerNode(Node):
 
     # -- inputs -------------------------------------------------------------------
     def _on_belief(self, msg: Belief):
+        """Raises input_checks.Rejected for a belief the planner cannot plan on."""
         if msg.model_set_id and msg.model_set_id != self.model_set_id:
-            self.get_logger().error(
-                "belief is over a different model set than the planner's "
-                f'({msg.model_set_id[:12]} vs {self.model_set_id[:12]}): give both nodes the '
-                'same model-set parameters; belief ignored', throttle_duration_sec=10.0)
-            return
+            raise Rejected('model_set', "belief is over a different model set than the "
+                                        f"planner's ({msg.model_set_id[:12]} vs "
+                                        f'{self.model_set_id[:12]}): give both nodes the '
+                                        'same model-set parameters')
+        check_belief(msg, self.model_set.num_nodes)
+        self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
+        self._belief_stamps.taken(msg.header.stamp)
         with self._belief_lock:
             self._belief_msg = msg
             self._belief_lock.notify_all()
         self._publish_markers()
 
     def _on_observation(self, msg: AspectObservation):
+        input_checks.aspect_observation(msg)
+        self._observation_stamps.check(msg.header.stamp, self.health.now_ns())
+        self._observation_stamps.taken(msg.header.stamp)
         if msg.hypotheses:
             self._cube_pose = (msg.header.frame_id, msg.hypotheses[0].object_pose.pose)
             self._publish_markers()
@@ -400,6 +416,29 @@ class PlannerNode(Node):
             belief = self._belief_msg
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg()))
+
+
+def check_belief(msg, num_nodes):
+    """Raise input_checks.Rejected unless `msg` is a belief over `num_nodes` aspect nodes
+    the planner can plan on: as many probabilities as indices (and object ids), indices
+    in range, finite probabilities, at least one node."""
+    n = len(msg.node_indices)
+    input_checks.at_most('node indices', n, num_nodes)
+    input_checks.at_most('object ids', len(msg.object_ids), num_nodes)
+    if n != len(msg.node_probabilities):
+        raise Rejected('size_mismatch', f'{n} node indices but {len(msg.node_probabilities)} '
+                                        'node probabilities')
+    if len(msg.object_ids) != len(msg.probabilities):
+        raise Rejected('size_mismatch', f'{len(msg.object_ids)} object ids but '
+                                        f'{len(msg.probabilities)} probabilities')
+    if n == 0:
+        raise Rejected('empty', 'belief without any aspect node')
+    input_checks.finite('node probabilities', msg.node_probabilities)
+    input_checks.finite('object probabilities', msg.probabilities)
+    input_checks.finite('entropy and node floor', (msg.entropy, msg.node_floor))
+    if max(msg.node_indices) >= num_nodes:
+        raise Rejected('out_of_range', f'node index {max(msg.node_indices)} of {num_nodes} '
+                                       'nodes')
 
 
 def main(args=None):

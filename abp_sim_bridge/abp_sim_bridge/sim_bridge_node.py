@@ -27,6 +27,11 @@ drawn, simulation time just runs slower than asked for. Rendering stays in the r
 thread (MuJoCo's GL context belongs to the thread that rendered first): a reset's new
 camera is first used, and the old one closed, there.
 
+Commands are checked before they reach the world: non-finite numbers, unknown joints,
+sizes that disagree, oversized trajectories and start stamps from the past or the far
+future are rejected, counted in /diagnostics and logged at most once per few seconds per
+kind (abp_common.health); the world keeps the last good command.
+
 Topic names are relative (abp_common.names), so the node runs under a namespace; /clock
 stays absolute. The science lives in `worlds`, `rules_world`, `rules_contact`,
 `rules_physics`, `mujoco_world`, `mujoco_scene`, `joint_trajectory_follower`,
@@ -53,7 +58,9 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from abp_common import names, qos
+from abp_common import input_checks, names, qos
+from abp_common.health import NodeHealth
+from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_description import camera_intrinsics
@@ -109,6 +116,11 @@ class SimBridgeNode(Node):
         self._failed = False
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
+        self.health = NodeHealth(self)
+        # The simulation is the clock the commands are stamped in: it is trusted.
+        self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
+                                                              trust_clock=True)
+                                   for c in CONTROLLERS}
 
         self._clock_pub = (self.create_publisher(Clock, names.CLOCK, qos.RELIABLE)
                            if self.config.publish_clock else None)
@@ -117,9 +129,9 @@ class SimBridgeNode(Node):
         self._image_pub = self.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
-        self.create_subscription(Twist, names.CMD_VEL, self._on_cmd_vel, qos.RELIABLE)
+        self.health.subscribe(Twist, names.CMD_VEL, self._on_cmd_vel, qos.RELIABLE)
         for controller in CONTROLLERS:
-            self.create_subscription(
+            self.health.subscribe(
                 JointTrajectory, names.trajectory_topic(controller),
                 lambda msg, c=controller: self._on_trajectory(c, msg), qos.RELIABLE)
         # ~/reset_world: names.RESET_WORLD for the node named sim_bridge.
@@ -189,14 +201,24 @@ class SimBridgeNode(Node):
 
     # -- commands ---------------------------------------------------------------------
     def _on_cmd_vel(self, msg):
+        """Raises input_checks.Rejected for a bad command (NodeHealth counts it)."""
+        input_checks.point('cmd_vel linear', msg.linear)
+        input_checks.point('cmd_vel angular', msg.angular)
         try:
             with self._lock:
                 self.sim.set_cmd_vel(msg.linear.x, msg.angular.z)
         except ValueError as err:
-            self.get_logger().warning(f'/cmd_vel ignored: {err}')
+            raise Rejected('out_of_range', str(err)) from None
+
+    def _sim_now_ns(self):
+        """The simulation's time as the stamps of the commands count it."""
+        return self.sim.time_ns + self._epoch_ns
 
     def _on_trajectory(self, controller, msg):
-        stamp_ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        """Raises input_checks.Rejected for a trajectory the controller refuses."""
+        check_trajectory(msg, CONTROLLERS[controller])
+        stamps = self._trajectory_stamps[controller]
+        stamp_ns = stamps.check(msg.header.stamp, self._sim_now_ns())
         points = [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
                                   np.asarray(p.positions, dtype=float),
                                   np.asarray(p.velocities, dtype=float)
@@ -207,7 +229,8 @@ class SimBridgeNode(Node):
                 self.sim.set_trajectory(controller, list(msg.joint_names), points,
                                         sim_seconds(stamp_ns, self._epoch_ns))
         except TrajectoryError as err:
-            self.get_logger().warning(f'/{controller}/joint_trajectory refused: {err}')
+            raise Rejected('malformed', str(err)) from None
+        stamps.taken(msg.header.stamp)
 
     # -- the simulation thread --------------------------------------------------------
     def _sim_loop(self):
@@ -237,6 +260,7 @@ class SimBridgeNode(Node):
 
     def _tick(self):
         frame = gt = None
+        started = time.perf_counter()
         with self._lock:
             sim = self.sim
             sim.step()
@@ -255,6 +279,7 @@ class SimBridgeNode(Node):
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
                 gt = self._ground_truth_msg(stamp)
+        self.health.latency(time.perf_counter() - started)
         if self._clock_pub is not None:
             self._clock_msg.clock = stamp
             self._clock_pub.publish(self._clock_msg)
@@ -357,6 +382,32 @@ class SimBridgeNode(Node):
         for thread in self._threads:
             thread.join(timeout=2.0)
         return self._failed
+
+
+MAX_TRAJECTORY_POINTS = 100_000
+
+
+def check_trajectory(msg, controller_joints):
+    """Raise input_checks.Rejected for a JointTrajectory no controller should follow:
+    oversized, joints the controller does not have, point sizes that disagree with the
+    joint names, non-finite numbers. (joint_trajectory_follower checks the rest.)"""
+    input_checks.at_most('trajectory points', len(msg.points), MAX_TRAJECTORY_POINTS)
+    input_checks.at_most('trajectory joint names', len(msg.joint_names), len(controller_joints))
+    unknown = [n for n in msg.joint_names if n not in controller_joints]
+    if unknown:
+        raise Rejected('unknown_id', f'joints {[n[:40] for n in unknown[:3]]} are not '
+                                     f'controlled here ({", ".join(controller_joints)})')
+    if msg.points and not msg.joint_names:
+        raise Rejected('empty', 'trajectory points without joint names')
+    n = len(msg.joint_names)
+    for i, p in enumerate(msg.points):
+        if len(p.positions) != n or len(p.velocities) not in (0, n) \
+                or len(p.accelerations) not in (0, n):
+            raise Rejected('size_mismatch', f'point {i} has {len(p.positions)} positions, '
+                                            f'{len(p.velocities)} velocities and '
+                                            f'{len(p.accelerations)} accelerations for {n} '
+                                            'joints')
+        input_checks.finite(f'point {i}', [*p.positions, *p.velocities, *p.accelerations])
 
 
 def main(args=None):

@@ -2,9 +2,12 @@
 
 `RobotInputs` subscribes /joint_states, /odom and /abp/aspect_observation (the cube pose
 estimate: hypotheses[0].object_pose, in base_link or any URDF frame) and feeds the node's
-`RobotState`. `RobotCommands` publishes /cmd_vel and the JointTrajectory of every
-controller of `abp_description.controllers.CONTROLLERS`
-(/<controller>/joint_trajectory). Names are relative (abp_common.names).
+`RobotState`; malformed messages (abp_common.input_checks: non-finite values, sizes that
+disagree, frames not in the URDF, stamps from the past or the future) are rejected and
+counted in the node's /diagnostics (`node.health`, abp_common.health). `RobotCommands`
+publishes /cmd_vel and the JointTrajectory of every controller of
+`abp_description.controllers.CONTROLLERS` (/<controller>/joint_trajectory). Names are
+relative (abp_common.names).
 """
 
 import numpy as np
@@ -15,7 +18,8 @@ from rclpy.duration import Duration as RclpyDuration
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from abp_common import names
+from abp_common import input_checks, names
+from abp_common.input_checks import Rejected
 from abp_common.qos import RELIABLE
 from abp_description.controllers import CONTROLLERS
 from abp_description.frames import yaw_of_quaternion
@@ -37,39 +41,47 @@ class RobotInputs:
     def __init__(self, node):
         self.node = node
         group = node.callback_group
-        node.create_subscription(JointState, names.JOINT_STATES, self._on_joint_states,
-                                 RELIABLE, callback_group=group)
-        node.create_subscription(Odometry, names.ODOM, self._on_odom, RELIABLE,
-                                 callback_group=group)
-        node.create_subscription(AspectObservation, names.ASPECT_OBSERVATION,
-                                 self._on_observation, RELIABLE, callback_group=group)
+        health = node.health
+        self._observation_stamps = health.stamp_check()
+        health.subscribe(JointState, names.JOINT_STATES, self._on_joint_states,
+                         RELIABLE, callback_group=group)
+        health.subscribe(Odometry, names.ODOM, self._on_odom, RELIABLE, callback_group=group)
+        health.subscribe(AspectObservation, names.ASPECT_OBSERVATION, self._on_observation,
+                         RELIABLE, callback_group=group)
 
     def _on_joint_states(self, msg):
-        self.node.state.set_joint_positions(dict(zip(msg.name, msg.position)))
+        input_checks.joint_state(msg)
+        positions = dict(zip(msg.name, msg.position))
+        if not any(self.node.kin.has_joint(n) for n in positions):
+            raise Rejected('unknown_id', 'joint_states names no joint of the robot')
+        self.node.state.set_joint_positions(positions)
 
     def _on_odom(self, msg):
+        input_checks.odometry(msg)
         p = msg.pose.pose
         o = p.orientation
         self.node.state.set_odom((p.position.x, p.position.y,
                                   yaw_of_quaternion(o.x, o.y, o.z, o.w)))
 
     def _on_observation(self, msg):
+        input_checks.aspect_observation(msg)
+        stamps = self._observation_stamps
+        stamps.check(msg.header.stamp, self.node.health.now_ns())
+        stamps.taken(msg.header.stamp)
         if not msg.hypotheses:
             return
         pose = msg.hypotheses[0].object_pose.pose
         point = np.array([pose.position.x, pose.position.y, pose.position.z])
-        if not np.all(np.isfinite(point)):
-            return
         frame = msg.header.frame_id.lstrip('/')
         if frame not in ('', 'base_link'):
             node = self.node
+            if not node.kin.has_frame(frame):
+                raise Rejected('frame', f'cube estimate in frame {frame[:40]!r}, which is not '
+                                        'in the URDF')
             q = node.state.latest_joints()
-            if not node.kin.has_frame(frame) or q is None:
-                node.get_logger().warning(
-                    f'cube estimate in frame {frame!r} cannot be put in base_link '
-                    '(unknown frame or no /joint_states yet); ignored',
-                    throttle_duration_sec=10.0)
-                return
+            if q is None:
+                raise Rejected('no_joint_states', f'cube estimate in frame {frame!r} cannot '
+                                                  'be put in base_link before /joint_states')
             with node.fk_lock:
                 tf = node.kin.frame_pose(q, frame)
             point = tf[:3, :3] @ point + tf[:3, 3]

@@ -49,7 +49,8 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from std_msgs.msg import String
 
-from abp_common import names
+from abp_common import input_checks, names
+from abp_common.health import NodeHealth
 from abp_common.node_runner import run_node
 from abp_common.param_spec import check_all
 from abp_common.parameters import declare_all, read_all
@@ -72,6 +73,7 @@ class SkillsNode(Node):
         super().__init__(node_name)
         self._specs = skills_parameter_specs(feasibility)
         values = declare_all(self, self._specs)
+        self.health = NodeHealth(self)   # declares its parameters: before the callback below
         # The motion planner owns one Pinocchio model/data (used under plan_lock); the
         # node's own forward kinematics (head aiming, estimate frames) use another (fk_lock).
         self.kin = RobotKinematics()
@@ -88,9 +90,8 @@ class SkillsNode(Node):
         self.claim = SkillClaim(self.get_fully_qualified_name(),
                                 lambda text: self._active_pub.publish(String(data=text)),
                                 self._active_publishers)
-        self.create_subscription(String, names.SKILLS_ACTIVE,
-                                 lambda msg: self.claim.on_message(msg.data), LATCHED_READER,
-                                 callback_group=self.callback_group)
+        self.health.subscribe(String, names.SKILLS_ACTIVE, self._on_skills_state,
+                              LATCHED_READER, callback_group=self.callback_group)
         self.actions = SkillActionServers(self, skills)
         self.feasibility = (FeasibilityService(self) if values['feasibility_service']
                             else None)
@@ -99,6 +100,10 @@ class SkillsNode(Node):
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
         self.get_logger().info(f'skills ready: {", ".join(hosted) or "nothing hosted"}')
+
+    def _on_skills_state(self, msg):
+        input_checks.skills_state(msg.data)     # Rejected: not a skills state
+        self.claim.on_message(msg.data)
 
     def _active_publishers(self):
         """Fully qualified names of the nodes publishing the skills' state (one per

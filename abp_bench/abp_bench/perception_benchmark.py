@@ -357,6 +357,9 @@ def main(argv=None):
     parser.add_argument('--threads', type=int, default=1, help='OpenCV threads')
     parser.add_argument('--rigid-frames', type=int, default=120,
                         help='frames per distance for the rigid-cube pose table (0: skip)')
+    parser.add_argument('--cube-size', type=float, default=0.10,
+                        help="TagDetector's cube_size: rigid cube fit for tags on one cube "
+                        '(0: per-tag poses only, as before issue 16)')
     parser.add_argument('--realistic-frames', type=int, default=150,
                         help='frames per condition of the realistic suite')
     parser.add_argument('--suite', choices=('standard', 'rigid', 'realistic'),
@@ -379,7 +382,7 @@ def main(argv=None):
     models = full_set(7)
     rng = np.random.default_rng(args.seed)
     gen = SceneGenerator(seed=args.seed)
-    detector = TagDetector(gen.K)
+    detector = TagDetector(gen.K, cube_size=args.cube_size)
     t0 = time.perf_counter()
     matcher = AspectMatcher(models)
     build_s = time.perf_counter() - t0

@@ -94,6 +94,86 @@ def score_detections(scene, detections):
     return exp60, found60, exp70, found70, len(detections) - wrong, wrong, centre_err
 
 
+def rotation_deg(a, b):
+    """Angle (deg) of the rotation between two rotation matrices."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def cube_tag_hits(scene, detections):
+    """[(detection, TruthTag)] of the detections of the cube's tags (matched by id and
+    image position, as in score_detections)."""
+    hits = []
+    for det in detections:
+        c = det.corners.mean(axis=0)
+        hit = [t for t in scene.tags if t.on_cube and t.tag_id == det.tag_id
+               and np.linalg.norm(t.corners_px.mean(axis=0) - c) < max(3.0, 0.3 * det.side_px)]
+        if hit:
+            hits.append((det, hit[0]))
+    return hits
+
+
+def cube_tag_errors(scene, detections):
+    """Errors of the cube's tags in a frame where >= 2 of them were detected (world-frame
+    detections; empty lists otherwise): rotation (deg) of the single-tag pose and of the
+    pose used (the rigid cube's when fitted), and their centre errors (m)."""
+    hits = cube_tag_hits(scene, detections)
+    if len(hits) < 2:
+        return [], [], [], []
+    return ([rotation_deg(d.single_tag_pose[:3, :3], t.rotation) for d, t in hits],
+            [rotation_deg(d.pose[:3, :3], t.rotation) for d, t in hits],
+            [float(np.linalg.norm(d.single_tag_pose[:3, 3] - t.centre)) for d, t in hits],
+            [float(np.linalg.norm(d.pose[:3, 3] - t.centre)) for d, t in hits])
+
+
+def run_rigid(gen, models, detector, rng, distances, frames, effects=None):
+    """Per distance: rotation and position errors of the cube's tags (frames with >= 2 of
+    them detected), single-tag IPPE pose against the rigid cube pose."""
+    rows = []
+    effects = _effects('default') if effects is None else effects
+    for distance in distances:
+        acc = [[], [], [], []]
+        fitted = 0
+        for _ in range(frames):
+            scene = random_scene(gen, models, rng, distance, effects=effects)
+            world = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
+            errs = cube_tag_errors(scene, world.detections)
+            for k in range(4):
+                acc[k] += errs[k]
+            fitted += bool(errs[0]) and bool(world.cubes)
+        rows.append({'distance': distance, 'frames': frames, 'tags': len(acc[0]),
+                     'fitted': fitted, 'single': np.array(acc[0]), 'rigid': np.array(acc[1]),
+                     'pos_single': np.array(acc[2]), 'pos_rigid': np.array(acc[3])})
+    return rows
+
+
+def rigid_table(rows):
+    out = ['| distance (m) | frames | tags (frames with ≥ 2 cube tags detected) '
+           '| frames with a rigid fit '
+           '| rotation error single-tag median / p95 / max (°) '
+           '| rotation error rigid cube median / p95 / max (°) '
+           '| face-centre error single / rigid median (mm) |',
+           '|---|---|---|---|---|---|---|']
+
+    def stats(a):
+        if not a.size:
+            return 'n/a'
+        return f'{np.median(a):.2f} / {np.percentile(a, 95):.2f} / {a.max():.1f}'
+
+    def med_mm(a):
+        return f'{1e3 * np.median(a):.1f}' if a.size else 'n/a'
+
+    total = {k: np.concatenate([r[k] for r in rows]) for k in
+             ('single', 'rigid', 'pos_single', 'pos_rigid')}
+    for r in rows + [dict(total, distance=None, frames=sum(r['frames'] for r in rows),
+                          tags=sum(r['tags'] for r in rows),
+                          fitted=sum(r['fitted'] for r in rows))]:
+        name = 'all' if r['distance'] is None else f"{r['distance']:.1f}"
+        out.append(f"| {name} | {r['frames']} | {r['tags']} | {r['fitted']} "
+                   f"| {stats(r['single'])} | {stats(r['rigid'])} "
+                   f"| {med_mm(r['pos_single'])} / {med_mm(r['pos_rigid'])} |")
+    return '\n'.join(out)
+
+
 def run_detection(gen, models, detector, rng, distances, frames, level):
     rows = []
     gen_effects = _effects(level)
@@ -245,11 +325,12 @@ def goals_table(det_rows, match_rows, match_range):
     ])
 
 
-def update_doc(path, section):
-    """Add or replace the '## Perception' section of a Markdown file (others kept)."""
+def update_doc(path, section, heading='Perception'):
+    """Add or replace the '## <heading>' section of a Markdown file (others kept)."""
     import re
     text = open(path).read() if os.path.exists(path) else '# Benchmarks\n'
-    pattern = re.compile(r'^## Perception\b.*?(?=^## |\Z)', re.S | re.M)
+    pattern = re.compile(r'^## ' + re.escape(heading) + r'[ \t]*(\(.*\))?[ \t]*$.*?(?=^## |\Z)',
+                         re.S | re.M)
     body = section.rstrip() + '\n\n'
     if pattern.search(text):
         text = pattern.sub(lambda _: body, text, count=1)
@@ -274,6 +355,18 @@ def main(argv=None):
     parser.add_argument('--match-max', type=float, default=1.6)
     parser.add_argument('--seed', type=int, default=0)
     parser.add_argument('--threads', type=int, default=1, help='OpenCV threads')
+    parser.add_argument('--rigid-frames', type=int, default=120,
+                        help='frames per distance for the rigid-cube pose table (0: skip)')
+    parser.add_argument('--cube-size', type=float, default=0.10,
+                        help="TagDetector's cube_size: rigid cube fit for tags on one cube "
+                        '(0: per-tag poses only, as before issue 16)')
+    parser.add_argument('--realistic-frames', type=int, default=150,
+                        help='frames per condition of the realistic suite')
+    parser.add_argument('--suite', choices=('standard', 'rigid', 'realistic'),
+                        default='standard',
+                        help="standard: every table of the '## Perception' section; rigid: "
+                        "only the rigid-cube pose table; realistic: the realistic-conditions "
+                        "suite against plain OpenCV (issue 16)")
     parser.add_argument('--update-doc', metavar='PATH',
                         help="write the tables as the '## Perception' section of PATH")
     args = parser.parse_args(argv)
@@ -289,11 +382,18 @@ def main(argv=None):
     models = full_set(7)
     rng = np.random.default_rng(args.seed)
     gen = SceneGenerator(seed=args.seed)
-    detector = TagDetector(gen.K)
+    detector = TagDetector(gen.K, cube_size=args.cube_size)
     t0 = time.perf_counter()
     matcher = AspectMatcher(models)
     build_s = time.perf_counter() - t0
 
+    if args.suite == 'rigid':
+        rows = run_rigid(gen, models, detector, rng, DISTANCES, max(args.rigid_frames, 1))
+        print(rigid_table(rows))
+        return 0
+    if args.suite == 'realistic':
+        from abp_bench import realistic_suite
+        return realistic_suite.main(args, models, gen, argv)
     det_rows = run_detection(gen, models, detector, rng, DISTANCES, args.frames, 'default')
     noise_rows = []
     if args.noise_frames:
@@ -306,6 +406,8 @@ def main(argv=None):
                               match_range)
     by_distance = run_matching(gen, models, detector, matcher, rng, args.distance_trials,
                                (0.5, 2.5)) if args.distance_trials > 0 else []
+    rigid_rows = run_rigid(gen, models, detector, rng, DISTANCES, args.rigid_frames) \
+        if args.rigid_frames > 0 else []
     robot_rows = []
     if args.robot_trials > 0:
         from abp_description.kinematics import RobotKinematics
@@ -382,6 +484,14 @@ def main(argv=None):
                   '',
                   matching_table(robot_rows, [(0.0, 10.0)]).replace('| 0.0-10.0 |', '| robot |'),
                   '']
+    if args.rigid_frames > 0:
+        lines += ['### Rigid-cube pose (issue 16, item 3)', '',
+                  'Tags of the cube in frames where at least 2 of them were detected: the '
+                  "tag's own IPPE_SQUARE pose (`Detection.single_tag_pose`) against the pose "
+                  'its cube implies (`Detection.pose`, one pose fitted to all the corners of '
+                  "the cube's tags, `abp_perception.rigid_cube`); default noise, "
+                  f'{args.rigid_frames} frames per distance.', '',
+                  rigid_table(rigid_rows), '']
     if by_distance:
         lines += ['### Aspect matching by distance (0.5-2.5 m)',
                   '',

@@ -21,6 +21,7 @@ from abp_belief import cube as cube_model
 from abp_description.frames import rot_z
 from abp_description.kinematics import look_at as aim_head
 from abp_sim_bridge.flat_renderer import (
+    FACE_TAG_AXES,
     ArcubeRenderer,
     Distractor,
     ImageEffects,
@@ -56,6 +57,7 @@ class TruthTag:
     in_image: bool
     on_cube: bool
     face: int = -1
+    rotation: np.ndarray = None      # (3, 3) tag axes (ArUco: x right, y up, z out) in world
 
 
 @dataclass
@@ -207,7 +209,7 @@ class SceneGenerator:
             tags.append(TruthTag(int(fv.tag_id), fv.corners_px, world,
                                  cube_pose[:3, :3] @ cube_model.FACE_NORMALS[fv.face],
                                  float(fv.cos_view), self._inside(fv.corners_px), True,
-                                 int(fv.face)))
+                                 int(fv.face), cube_pose[:3, :3] @ FACE_TAG_AXES[fv.face]))
         world_to_cam = np.linalg.inv(cam)
         for d in distractors:
             pose = np.asarray(d.pose, dtype=np.float64)
@@ -223,6 +225,6 @@ class SceneGenerator:
             px = pc[:, :2] / pc[:, 2:3] * [self.K[0, 0], self.K[1, 1]] \
                 + [self.K[0, 2], self.K[1, 2]]
             tags.append(TruthTag(int(d.tag_id), px, centre, normal, cos_view,
-                                 self._inside(px), False))
+                                 self._inside(px), False, -1, pose[:3, :3].copy()))
         return tags
 

@@ -6,10 +6,11 @@ from abp_bench import perception_benchmark
 def test_benchmark_runs_and_prints_the_tables(capsys):
     assert perception_benchmark.main(['--frames', '2', '--noise-frames', '0',
                                       '--match-trials', '4', '--distance-trials', '0',
-                                      '--robot-trials', '3']) == 0
+                                      '--robot-trials', '3', '--rigid-frames', '2']) == 0
     out = capsys.readouterr().out
     assert out.startswith('## Perception')
-    for heading in ('### Goals', '### Detection by distance', '### Aspect matching'):
+    for heading in ('### Goals', '### Detection by distance', '### Aspect matching',
+                    '### Rigid-cube pose'):
         assert heading in out
     assert '| face-centre error at 1 m (median) | ≤ 5 mm |' in out
 

@@ -28,6 +28,13 @@ Pipeline per grey image (``TagDetector.detect``):
    solution with the lowest reprojection error is used (``Detection.solver`` names it).
 5. Covariance and confidence (below). Degenerate or implausible detections are
    dropped with a reason (``DetectionResult.dropped``).
+6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
+   distance apart are fitted as one rigid ARcube from all their corners, seeded by every
+   IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
+   ``DetectionResult.cubes`` lists the cube poses; each of their tags gets the pose and
+   covariance the cube implies (``solver`` 'rigid_cube', ``cube`` its index), and keeps
+   its own pose in ``single_pose`` / ``single_covariance`` / ``single_reprojection_error``
+   (``single_tag_pose`` gives the tag's own pose either way).
 
 Covariance model (6 x 6, order x, y, z, rot x, rot y, rot z, axes of the output frame;
 rotations as a small rotation vector). With ``f`` the focal length (px), ``s`` the
@@ -75,6 +82,7 @@ import cv2
 import numpy as np
 
 from .corners import decode_quads, quad_areas, refine_quads
+from .rigid_cube import fit_cubes
 
 __all__ = [
     'ImageEncodingError', 'ImageDecodeError', 'ImageLayoutError', 'ImageSizeError', 'image_to_gray',
@@ -299,10 +307,29 @@ class Detection:
     frame: str = 'camera'
     ambiguity: float = 0.0         # best / second-best IPPE reprojection error (0..1)
     solver: str = 'ippe_square'    # PnP method whose pose is used (module docstring)
+    # Index into DetectionResult.cubes when `pose` is the one its cube's rigid fit implies
+    # (solver 'rigid_cube'); -1 when `pose` is the tag's own.
+    cube: int = -1
+    # The tag's own (single-tag) pose, covariance and RMS error when `pose` is the rigid
+    # cube's; None otherwise (then `pose` is the tag's own: see `single_tag_pose`).
+    single_pose: np.ndarray = field(default=None, repr=False)
+    single_covariance: np.ndarray = field(default=None, repr=False)
+    single_reprojection_error: float = None
+    # (k, 4, 4) single-tag pose solutions, best first (IPPE's two, or the fallback's).
+    candidates: np.ndarray = field(default=None, repr=False)
 
     @property
     def position(self) -> np.ndarray:
         return self.pose[:3, 3]
+
+    @property
+    def single_tag_pose(self) -> np.ndarray:
+        """The tag's own pose (from its four corners alone), whatever `pose` is."""
+        return self.pose if self.single_pose is None else self.single_pose
+
+    @property
+    def single_tag_covariance(self) -> np.ndarray:
+        return self.covariance if self.single_covariance is None else self.single_covariance
 
     @property
     def normal(self) -> np.ndarray:
@@ -311,9 +338,14 @@ class Detection:
     def transformed(self, transform, frame: str) -> "Detection":
         """This detection expressed in another frame; `transform` maps camera -> frame."""
         transform = np.asarray(transform, dtype=np.float64)
-        return replace(self, pose=transform @ self.pose,
-                       covariance=transform_covariance(self.covariance, transform[:3, :3]),
-                       frame=frame)
+        rot = transform[:3, :3]
+        return replace(
+            self, pose=transform @ self.pose,
+            covariance=transform_covariance(self.covariance, rot), frame=frame,
+            single_pose=None if self.single_pose is None else transform @ self.single_pose,
+            single_covariance=None if self.single_covariance is None
+            else transform_covariance(self.single_covariance, rot),
+            candidates=None if self.candidates is None else transform[None] @ self.candidates)
 
 
 @dataclass
@@ -328,10 +360,12 @@ class DetectionResult:
     detections: list
     dropped: list
     second_pass: int = 0           # detections recovered from rejected candidates
+    cubes: list = field(default_factory=list)   # rigid_cube.CubePose, >= 2 tags each
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
         return DetectionResult([d.transformed(transform, frame) for d in self.detections],
-                               list(self.dropped), self.second_pass)
+                               list(self.dropped), self.second_pass,
+                               [c.transformed(transform, frame) for c in self.cubes])
 
 
 def _inside_any(points, quads) -> np.ndarray:
@@ -392,7 +426,7 @@ class TagDetector:
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
-                 image_size=None):
+                 image_size=None, cube_size: float | None = 0.10):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -410,6 +444,13 @@ class TagDetector:
         self.min_side_px = float(min_side_px)
         self.ambiguity_ratio = float(ambiguity_ratio)
         self.camera_frame = camera_frame
+        if cube_size is not None and not (np.isfinite(cube_size) and cube_size >= 0):
+            raise ValueError(f'cube_size must be >= 0 m (0 or None: no rigid cube fit), '
+                             f'got {cube_size}')
+        if cube_size and cube_size <= marker_size:
+            raise ValueError(f'cube_size {cube_size} m must exceed marker_size '
+                             f'{marker_size} m (a tag is centred on a cube face)')
+        self.cube_size = float(cube_size) if cube_size else 0.0
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
         self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
@@ -496,7 +537,24 @@ class TagDetector:
                 dropped.append(det)
             else:
                 detections.append(det)
-        return DetectionResult(detections, dropped, recovered)
+        cubes = self._rigid_cubes(detections) if self.cube_size else []
+        return DetectionResult(detections, dropped, recovered, cubes)
+
+    def _rigid_cubes(self, detections):
+        """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`
+        becomes the one the cube implies, their own kept in `single_*`. In place."""
+        cubes, rigid = fit_cubes(detections, [d.candidates for d in detections],
+                                 self.camera_matrix, self.dist_coeffs, self.cube_size,
+                                 self.object_points, self.max_reprojection_error,
+                                 self.corner_sigma_px, SMALL_TAG_PX2)
+        for i, (pose, cov, rms, k) in rigid.items():
+            det = detections[i]
+            detections[i] = replace(
+                det, pose=pose, covariance=cov, reprojection_error=rms, cube=k,
+                solver='rigid_cube', ambiguity=0.0, single_pose=det.pose,
+                single_covariance=det.covariance,
+                single_reprojection_error=det.reprojection_error)
+        return cubes
 
     def check_image(self, gray) -> np.ndarray:
         """`gray` as a C-contiguous (height, width) uint8 array, or ValueError saying why
@@ -603,8 +661,18 @@ class TagDetector:
         pose[:3, :3], pose[:3, 3] = rot, tvec
         cov = pose_covariance(rot, tvec, side, rms, self.focal_px, self.corner_sigma_px, angle)
         confidence = float(np.exp(-0.5 * rms ** 2) * min(1.0, side / _FULL_CONFIDENCE_SIDE_PX))
+        cands = [pose]
+        for sol in solutions[1:]:
+            if np.isfinite(sol[1]).all() and np.isfinite(sol[2]).all() and sol[2][2] > 0 \
+                    and _normal_angle(rot, sol[1]) > _ROTATION_FLOOR:
+                other = np.eye(4)
+                other[:3, :3], _ = cv2.Rodrigues(sol[1])
+                other[:3, 3] = sol[2]
+                cands.append(other)
+                break
         return Detection(tag_id, quad.copy(), pose, cov, rms, confidence, side,
-                         self.marker_size, self.camera_frame, ambiguity, solver)
+                         self.marker_size, self.camera_frame, ambiguity, solver,
+                         candidates=np.array(cands))
 
     def _solve_pnp(self, quad, name, flag):
         """[(rms px, rvec, tvec, name)] of cv2.solvePnPGeneric with `flag`, finite ones,

@@ -22,6 +22,9 @@ DETECTOR_SPECS = (
               'compressed convention) on camera/image_raw/compressed.', read_only=True,
               choices=IMAGE_TRANSPORTS),
     ParamSpec('marker_size', DOUBLE, 0.08, "Edge of a tag's black square, m.", (0.005, 2.0)),
+    ParamSpec('cube_size', DOUBLE, 0.10, 'Edge of the ARcubes, m: tags on adjacent faces '
+              '(centres cube_size / sqrt 2 apart) are fitted as one rigid cube and published '
+              'with the poses it implies; 0 = per-tag poses only.', (0.0, 5.0)),
     ParamSpec('base_frame', STRING, 'base_link', 'Frame of the published poses (robot base).',
               read_only=True),
     ParamSpec('camera_frame', STRING, 'camera_optical_frame',
@@ -39,7 +42,7 @@ DETECTOR_SPECS = (
     ParamSpec('second_pass', BOOL, True, 'Decode candidates that ArUco rejected, after '
               'refining.'),
 )
-DETECTOR_PARAMETERS = ('marker_size', 'corner_sigma_px', 'max_reprojection_error',
+DETECTOR_PARAMETERS = ('marker_size', 'cube_size', 'corner_sigma_px', 'max_reprojection_error',
                        'min_side_px', 'refine_corners', 'second_pass')
 
 MATCHER_SPECS = (

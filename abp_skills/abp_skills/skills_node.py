@@ -21,7 +21,10 @@ JSON `{"node", "skill", "since", "goal"}`, `skill` empty when idle) and reads th
 A goal arriving while any skill runs (here or in another process) is accepted and
 immediately aborted with `reason` "rejected: busy: ..." (a rejected goal could carry no
 reason). Two goals claimed at the same moment in two processes are settled after
-`claim_settle_time`: the earlier claim wins, the other aborts (`skill_claim`).
+`claim_settle_time`: the earlier claim wins, the other aborts (`skill_claim`). Each change
+of a peer's state is logged when it arrives ("skills peer /orbit_server: orbit running",
+"... idle"): the topic takes its time, and a goal sent to this process before that line
+may still find the peer idle.
 
 Subscribes:  /joint_states, /odom, /abp/aspect_observation (the cube pose estimate:
              hypotheses[0].object_pose, in base_link or any URDF frame), /abp/skills/active
@@ -88,9 +91,8 @@ class SkillsNode(Node):
         self.claim = SkillClaim(self.get_fully_qualified_name(),
                                 lambda text: self._active_pub.publish(String(data=text)),
                                 self._active_publishers)
-        self.create_subscription(String, names.SKILLS_ACTIVE,
-                                 lambda msg: self.claim.on_message(msg.data), LATCHED_READER,
-                                 callback_group=self.callback_group)
+        self.create_subscription(String, names.SKILLS_ACTIVE, self._on_skills_active,
+                                 LATCHED_READER, callback_group=self.callback_group)
         self.actions = SkillActionServers(self, skills)
         self.feasibility = (FeasibilityService(self) if values['feasibility_service']
                             else None)
@@ -99,6 +101,13 @@ class SkillsNode(Node):
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
         self.get_logger().info(f'skills ready: {", ".join(hosted) or "nothing hosted"}')
+
+    def _on_skills_active(self, msg):
+        changed = self.claim.on_message(msg.data)
+        if changed is not None:
+            # A peer's claim or release has reached this process (tests wait for this line).
+            running = f'{changed["skill"]} running' if changed['skill'] else 'idle'
+            self.get_logger().info(f'skills peer {changed["node"]}: {running}')
 
     def _active_publishers(self):
         """Fully qualified names of the nodes publishing the skills' state (one per

@@ -274,10 +274,13 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     start_robot(ros_processes, '--cmd-timeout', '1e9')
     # Separate processes: the one-skill-at-a-time rule goes through /abp/skills/active.
     start_server(ros_processes, 'orbit_server')
-    start_server(ros_processes, 'lift_server')
+    lift_server = start_server(ros_processes, 'lift_server')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('ORBIT_180', lambda a: a[0])[0]
+    # The lift server has found the orbit server on the claims topic (discovery done):
+    # the ORBIT's claim will reach it while the ORBIT runs.
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 60)
 
     feedback = []
     _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=180.0), feedback)
@@ -286,7 +289,9 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
         pytest.fail(f'the orbit never reached its arc: {res.status} {res.result.reason}')
     assert tester.spin(lambda: abs(tester.odom[3].linear.x) > 0.05, 5), 'base not moving'
 
-    # A second skill while ORBIT runs (in another process) is rejected with a reason.
+    # A second skill while ORBIT runs (in another process) is rejected with a reason. The
+    # claim travels on a topic: the LIFT goes once the lift server says it has the claim.
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: orbit running', 30)
     _, lift = tester.send(Lift, 'lift', Lift.Goal())
     res = tester.result(lift, 10)
     assert res.status == GoalStatus.STATUS_ABORTED
@@ -324,6 +329,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     assert all(c[1:] == (0.0, 0.0) for c in after), f'motion commands after the stop: {after}'
 
     # The claim was released: LIFT now runs (and is cancelled in its approach).
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 30)
     feedback = []
     _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
     assert tester.spin(lambda: any(f.phase == 'approach' and f.progress > 0.05

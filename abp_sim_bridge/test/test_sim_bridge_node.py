@@ -183,9 +183,11 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     # median of the slopes between messages half the window apart, robust to bursts of
     # late ones. The bridge never runs ahead of its speed-up, but lets simulation time run
     # slower when the machine cannot keep up (sim_timing.Pacer, whose exact pacing
-    # test_sim_timing.py checks; 2.7x of 4x seen with two busy loops on two cores): the
-    # bounds tell the paced clock from an unpaced one (far faster) and from one that
-    # ignores the speed-up (1x).
+    # test_sim_timing.py checks; 2.7x of 4x seen with two busy loops on two cores, 1.4x
+    # with other work beside them): the bounds tell the paced clock from an unpaced one
+    # (far faster) and from one that ignores the speed-up (1x). Slower than 0.4 x the
+    # speed-up is accepted only when the bridge says it could not keep up (it reports its
+    # real-time factor every 10 s of wall time when it falls short).
     c.msgs['clock'].clear()
     c.wall['clock'].clear()
     assert c.spin_until(lambda: len(c.wall['clock']) > 100
@@ -195,7 +197,9 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     half = len(clocks) // 2
     ratio = float(np.median((clocks[half:2 * half] - clocks[:half]) * 1e-9
                             / (walls[half:2 * half] - walls[:half])))
-    assert 0.4 * speedup <= ratio <= 1.25 * speedup, f'sim/wall = {ratio:.2f}'
+    assert ratio <= 1.25 * speedup, f'sim/wall = {ratio:.2f}: ahead of the speed-up'
+    if ratio < 0.4 * speedup:
+        ros_processes.wait_for_line(proc, 'the machine cannot keep up', 30)
     # One /clock per 50 Hz tick. The bridge's publishers keep the last 10 messages: a
     # reader starved for longer loses some (a gap of whole ticks), never gets others.
     steps = np.diff(clocks)
@@ -383,12 +387,20 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     last = t.last('joint_states')
     assert pos(last, 'left_shoulder_pitch_joint') == 0.0
     assert -1.0 < pos(last, 'left_elbow_joint') < 0.0
-    # A new trajectory replaces the running one; no points = stop and hold.
+    # A new trajectory replaces the running one; no points = stop and hold. It takes
+    # effect when it reaches the bridge (under load, more than a fixed sim time after the
+    # last state received here): from the first state with the elbow at rest, it holds.
+    n_before = len(t.msgs['joint_states'])
     arm.publish(JointTrajectory(joint_names=['left_elbow_joint']))
-    t0 = ns(t.last('joint_states').header.stamp)
+
+    def stopped():
+        return next((m for m in t.msgs['joint_states'][n_before:]
+                     if m.velocity[m.name.index('left_elbow_joint')] == 0.0), None)
+    assert t.spin_until(lambda: stopped() is not None, 30), 'the elbow did not stop'
+    t0 = ns(stopped().header.stamp)
     assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) > t0 + 2e9, 30)
     held = [pos(m, 'left_elbow_joint') for m in t.msgs['joint_states']
-            if ns(m.header.stamp) > t0 + 0.5e9]
+            if ns(m.header.stamp) >= t0]
     assert np.ptp(held) < 1e-9, 'the elbow did not hold after an empty trajectory'
     assert held[0] > -1.0 + 1e-3  # it stopped before reaching the first point
 

@@ -6,6 +6,13 @@
 - `reliable(depth)`: event topics (observations, executed actions, plans), where a lost
   message is lost evidence; depth sized by the subscriber's worst backlog.
 - `SENSOR_DATA`: camera images (best effort, keep last): a stale frame is worth nothing.
+- `CAMERA_PUBLISHER`: what a camera publishes images and camera info with: reliable, keep
+  last `SENSOR_DATA`'s depth. Each subscriber then chooses: `SENSOR_DATA` (the detector)
+  takes what arrives and is never waited for; a reliable subscriber (a test that must see
+  frames) gets lost fragments sent again. A 640x480 bgr8 frame (921 KB) is larger than
+  Fast DDS's default shared-memory segment (512 KB): a best-effort reader got 1 to 4 of 56
+  such frames where a reliable reader in the same process got all 56 (mono8, 307 KB: all
+  of them either way). Many camera drivers publish reliable for the same reason.
 """
 
 from rclpy.qos import (
@@ -36,6 +43,7 @@ RELIABLE = reliable()
 LATCHED = latched()
 LATCHED_READER = latched(DEFAULT_DEPTH)
 SENSOR_DATA = qos_profile_sensor_data
+CAMERA_PUBLISHER = reliable(SENSOR_DATA.depth)
 
-__all__ = ['DEFAULT_DEPTH', 'LATCHED', 'LATCHED_READER', 'RELIABLE', 'SENSOR_DATA', 'latched',
-           'reliable']
+__all__ = ['CAMERA_PUBLISHER', 'DEFAULT_DEPTH', 'LATCHED', 'LATCHED_READER', 'RELIABLE',
+           'SENSOR_DATA', 'latched', 'reliable']

@@ -8,7 +8,8 @@ Subscribes:  /cmd_vel (geometry_msgs/Twist)
              (trajectory_msgs/JointTrajectory)
 Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /joint_states (sensor_msgs/JointState, 13 joints), /odom (nav_msgs/Odometry)
-             /camera/image_raw (sensor_msgs/Image), /camera/camera_info (sensor data QoS)
+             /camera/image_raw (sensor_msgs/Image), /camera/camera_info (reliable: a
+             subscriber chooses sensor data QoS or reliable; abp_common.qos)
              /abp/sim/ground_truth (abp_msgs/SimGroundTruth, transient local;
              TESTS AND BENCHMARKS ONLY)
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
@@ -126,8 +127,9 @@ class SimBridgeNode(Node):
                            if self.config.publish_clock else None)
         self._joint_pub = self.create_publisher(JointState, names.JOINT_STATES, qos.RELIABLE)
         self._odom_pub = self.create_publisher(Odometry, names.ODOM, qos.RELIABLE)
-        self._image_pub = self.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
-        self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
+        self._image_pub = self.create_publisher(Image, names.IMAGE, qos.CAMERA_PUBLISHER)
+        self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
+                                               qos.CAMERA_PUBLISHER)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
         self.health.subscribe(Twist, names.CMD_VEL, self._on_cmd_vel, qos.RELIABLE)
         for controller in CONTROLLERS:

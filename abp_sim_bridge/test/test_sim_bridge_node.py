@@ -87,8 +87,10 @@ class Tester:  # noqa: D101
             'clock': (Clock, '/clock', RELIABLE),
             'joint_states': (JointState, '/joint_states', RELIABLE),
             'odom': (Odometry, '/odom', RELIABLE),
-            'image': (Image, '/camera/image_raw', qos.SENSOR_DATA),
-            'camera_info': (CameraInfo, '/camera/camera_info', qos.SENSOR_DATA),
+            # Reliable: the bridge publishes its camera reliable (qos.CAMERA_PUBLISHER), and
+            # a best-effort reader loses most 921 KB frames on a loaded machine.
+            'image': (Image, '/camera/image_raw', qos.reliable(10)),
+            'camera_info': (CameraInfo, '/camera/camera_info', qos.reliable(10)),
             'ground_truth': (SimGroundTruth, '/abp/sim/ground_truth', qos.LATCHED),
         }
         for name in topics:
@@ -181,9 +183,11 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     # median of the slopes between messages half the window apart, robust to bursts of
     # late ones. The bridge never runs ahead of its speed-up, but lets simulation time run
     # slower when the machine cannot keep up (sim_timing.Pacer, whose exact pacing
-    # test_sim_timing.py checks; 2.7x of 4x seen with two busy loops on two cores): the
-    # bounds tell the paced clock from an unpaced one (far faster) and from one that
-    # ignores the speed-up (1x).
+    # test_sim_timing.py checks; 2.7x of 4x seen with two busy loops on two cores, 1.4x
+    # with other work beside them): the bounds tell the paced clock from an unpaced one
+    # (far faster) and from one that ignores the speed-up (1x). Slower than 0.4 x the
+    # speed-up is accepted only when the bridge says it could not keep up (it reports its
+    # real-time factor every 10 s of wall time when it falls short).
     c.msgs['clock'].clear()
     c.wall['clock'].clear()
     assert c.spin_until(lambda: len(c.wall['clock']) > 100
@@ -193,7 +197,9 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     half = len(clocks) // 2
     ratio = float(np.median((clocks[half:2 * half] - clocks[:half]) * 1e-9
                             / (walls[half:2 * half] - walls[:half])))
-    assert 0.4 * speedup <= ratio <= 1.25 * speedup, f'sim/wall = {ratio:.2f}'
+    assert ratio <= 1.25 * speedup, f'sim/wall = {ratio:.2f}: ahead of the speed-up'
+    if ratio < 0.4 * speedup:
+        ros_processes.wait_for_line(proc, 'the machine cannot keep up', 30)
     # One /clock per 50 Hz tick. The bridge's publishers keep the last 10 messages: a
     # reader starved for longer loses some (a gap of whole ticks), never gets others.
     steps = np.diff(clocks)
@@ -381,48 +387,62 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     last = t.last('joint_states')
     assert pos(last, 'left_shoulder_pitch_joint') == 0.0
     assert -1.0 < pos(last, 'left_elbow_joint') < 0.0
-    # A new trajectory replaces the running one; no points = stop and hold.
+    # A new trajectory replaces the running one; no points = stop and hold. It takes
+    # effect when it reaches the bridge (under load, more than a fixed sim time after the
+    # last state received here): from the first state with the elbow at rest, it holds.
+    n_before = len(t.msgs['joint_states'])
     arm.publish(JointTrajectory(joint_names=['left_elbow_joint']))
-    t0 = ns(t.last('joint_states').header.stamp)
+
+    def stopped():
+        return next((m for m in t.msgs['joint_states'][n_before:]
+                     if m.velocity[m.name.index('left_elbow_joint')] == 0.0), None)
+    assert t.spin_until(lambda: stopped() is not None, 30), 'the elbow did not stop'
+    t0 = ns(stopped().header.stamp)
     assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) > t0 + 2e9, 30)
     held = [pos(m, 'left_elbow_joint') for m in t.msgs['joint_states']
-            if ns(m.header.stamp) > t0 + 0.5e9]
+            if ns(m.header.stamp) >= t0]
     assert np.ptp(held) < 1e-9, 'the elbow did not hold after an empty trajectory'
     assert held[0] > -1.0 + 1e-3  # it stopped before reaching the first point
 
 
 # -- camera -------------------------------------------------------------------------------
 
-# Under CI load the first images (best effort, rendered in their own thread) came late
-# once (issue 14). A real fault fails every rerun.
-@pytest.mark.flaky(reruns=2, reruns_delay=2)
 def test_camera_images_show_the_tags_the_ground_truth_says(ros_processes, tester_factory):
     start_bridge(ros_processes, world='rules', speedup=1.0, camera_encoding='bgr8',
                  distractors=3,
                  cube_x=0.9, cube_y=0.15, cube_yaw=0.35, camera_noise_std=1.5,
                  face_tags=str(TAGS).replace(' ', ''))
     t = tester_factory('image', 'camera_info', 'joint_states', 'ground_truth')
+
+    def image_and_joints():
+        """The latest image whose joint state (same stamp) has arrived too, and that state:
+        the two travel on different topics, and either can come first."""
+        joints = {ns(m.header.stamp): m for m in t.msgs['joint_states']}
+        return next(((m, joints[ns(m.header.stamp)]) for m in reversed(t.msgs['image'])
+                     if ns(m.header.stamp) in joints), None)
     assert t.spin_until(lambda: len(t.msgs['image']) >= 6 and t.msgs['camera_info']
                         and t.msgs['ground_truth'], 30), 'no camera images'
+    assert t.spin_until(lambda: image_and_joints() is not None, 30), \
+        'no joint state with the stamp of an image'
     info = t.last('camera_info')
     intr = camera_intrinsics()
     assert (info.width, info.height) == (intr.width, intr.height) == (640, 480)
     assert np.allclose(np.reshape(info.k, (3, 3)), intr.K)
     assert info.header.frame_id == 'camera_optical_frame'
-    # Frames every 0.1 s of sim time (best-effort delivery may drop some large frames).
+    # Frames every 0.1 s of sim time (a reliable reader can still miss frames its keep-last
+    # history dropped while this process was starved).
     stamps = np.array([ns(m.header.stamp) for m in t.msgs['image']]) / 1e8
     assert np.allclose(stamps, np.round(stamps), atol=1e-6), 'camera_rate 10 Hz of sim time'
     assert np.all(np.diff(stamps) >= 1 - 1e-6)
     assert {ns(m.header.stamp) for m in t.msgs['image']} & \
         {ns(m.header.stamp) for m in t.msgs['camera_info']}, 'image and info share stamps'
 
-    img_msg = t.msgs['image'][-1]
+    img_msg, js = image_and_joints()
     assert img_msg.encoding == 'bgr8' and img_msg.step == 640 * 3
     assert len(img_msg.data) == 640 * 480 * 3
     img = np.frombuffer(bytes(img_msg.data), np.uint8).reshape(480, 640, 3)
     # Where was the camera? FK over the joint state of the same stamp + the true base.
     kin = RobotKinematics()
-    js = next(m for m in t.msgs['joint_states'] if ns(m.header.stamp) == ns(img_msg.header.stamp))
     q = kin.q_from_mapping(dict(zip(js.name, js.position)))
     gt = t.last('ground_truth')
     base = gt.base_pose

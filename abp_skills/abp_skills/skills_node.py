@@ -21,7 +21,10 @@ JSON `{"node", "skill", "since", "goal"}`, `skill` empty when idle) and reads th
 A goal arriving while any skill runs (here or in another process) is accepted and
 immediately aborted with `reason` "rejected: busy: ..." (a rejected goal could carry no
 reason). Two goals claimed at the same moment in two processes are settled after
-`claim_settle_time`: the earlier claim wins, the other aborts (`skill_claim`).
+`claim_settle_time`: the earlier claim wins, the other aborts (`skill_claim`). Each change
+of a peer's state is logged when it arrives ("skills peer /orbit_server: orbit running",
+"... idle"): the topic takes its time, and a goal sent to this process before that line
+may still find the peer idle.
 
 Subscribes:  /joint_states, /odom, /abp/aspect_observation (the cube pose estimate:
              hypotheses[0].object_pose, in base_link or any URDF frame), /abp/skills/active
@@ -103,7 +106,11 @@ class SkillsNode(Node):
 
     def _on_skills_state(self, msg):
         input_checks.skills_state(msg.data)     # Rejected: not a skills state
-        self.claim.on_message(msg.data)
+        changed = self.claim.on_message(msg.data)
+        if changed is not None:
+            # A peer's claim or release has reached this process (tests wait for this line).
+            running = f'{changed["skill"]} running' if changed['skill'] else 'idle'
+            self.get_logger().info(f'skills peer {changed["node"]}: {running}')
 
     def _active_publishers(self):
         """Fully qualified names of the nodes publishing the skills' state (one per

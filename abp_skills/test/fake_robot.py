@@ -11,8 +11,11 @@ command/sensor contract of docs/INTERFACES.md and nothing else (no cube, no phys
   a new trajectory replaces the running one; an empty one holds the current position;
   positions are clamped to the URDF limits.
 - /joint_states (all 13 joints, position and velocity) and /odom are published at 50 Hz.
+- `--block-arms`: the first trajectory of each arm controller stops halfway through its
+  time (as if the arm hit something) and the arm holds there; once both arms hold, the
+  robot prints "arms blocked". Later trajectories are followed in full.
 
-    python fake_robot.py [--posture home|neutral] [--cmd-timeout S]
+    python fake_robot.py [--posture home|neutral] [--cmd-timeout S] [--block-arms]
 """
 
 import argparse
@@ -38,10 +41,23 @@ HOME = {'left_shoulder_pitch_joint': 0.5, 'left_shoulder_roll_joint': 0.2,
         'right_shoulder_roll_joint': -0.2, 'right_elbow_joint': -2.0, 'head_tilt_joint': 1.0}
 
 
+ARM_CONTROLLERS = ('left_arm_controller', 'right_arm_controller')
+
+
+def cut_at(times, pos, t_cut):
+    """The trajectory (times, positions) up to `t_cut`, ending there (interpolated)."""
+    keep = times < t_cut
+    end = [np.interp(t_cut, times, pos[:, k]) for k in range(pos.shape[1])]
+    return np.append(times[keep], t_cut), np.vstack([pos[keep], end])
+
+
 class FakeRobot(Node):
-    def __init__(self, posture, cmd_timeout=0.5):
+    def __init__(self, posture, cmd_timeout=0.5, block_arms=False):
         super().__init__('fake_robot')
         self.cmd_timeout = float(cmd_timeout)
+        # Arm controllers whose next trajectory is cut halfway, and those running a cut one.
+        self.to_block = set(ARM_CONTROLLERS) if block_arms else set()
+        self.blocking = set()
         self.kin = RobotKinematics()
         self.lock = threading.Lock()
         self.q = self.kin.neutral()
@@ -91,6 +107,10 @@ class FakeRobot(Node):
             if now < start:
                 times = np.concatenate([[now - start], times])
                 pos = np.vstack([q_now, pos])
+            if name in self.to_block:
+                self.to_block.discard(name)
+                self.blocking.add(name)
+                times, pos = cut_at(times, pos, times[-1] / 2)
             self.active[name] = (start, idx, times, pos)
 
     def step(self):
@@ -104,6 +124,10 @@ class FakeRobot(Node):
                 self.q[idx] = [np.interp(t, times, pos[:, k]) for k in range(len(idx))]
                 if t > times[-1]:
                     del self.active[name]
+                    if name in self.blocking:
+                        self.blocking.discard(name)
+                        if not self.blocking and not self.to_block:
+                            self.get_logger().info('arms blocked')
             self.q = self.kin.clip(self.q)
             self.qd = (self.q - prev) / max(dt, 1e-6)
             v, w = self.cmd if now - self.cmd_time <= self.cmd_timeout else (0.0, 0.0)
@@ -131,9 +155,10 @@ def main():
     parser = argparse.ArgumentParser()
     parser.add_argument('--posture', choices=('home', 'neutral'), default='home')
     parser.add_argument('--cmd-timeout', type=float, default=0.5)
+    parser.add_argument('--block-arms', action='store_true')
     args, ros_args = parser.parse_known_args()
     rclpy.init(args=[sys.argv[0], *ros_args])
-    node = FakeRobot(args.posture, args.cmd_timeout)
+    node = FakeRobot(args.posture, args.cmd_timeout, args.block_arms)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

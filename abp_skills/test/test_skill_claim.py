@@ -22,9 +22,11 @@ class Graph:
             if during_settle is not None:
                 during_settle()
         self.slept = None
+        self.monotonic = 0.0
         return SkillClaim(node, lambda text: self.sent.append(json.loads(text)),
                           lambda: list(self.publishers), wall_clock=lambda: wall,
-                          sleep=sleep, new_goal_id=lambda: 'goal-1')
+                          sleep=sleep, new_goal_id=lambda: 'goal-1',
+                          monotonic=lambda: self.monotonic, unlisted_grace_s=30.0)
 
 
 def peer_state(skill='lift', since=50.0, node=PEER):
@@ -51,6 +53,40 @@ def test_a_live_busy_peer_rejects_the_goal_and_a_gone_one_does_not():
     assert graph.sent == []             # nothing announced, and the lock was given back
     graph.publishers = [ME]             # the lift process is gone
     assert claim.claim('orbit') is None
+
+
+def test_a_busy_peer_the_graph_does_not_list_yet_still_rejects_the_goal():
+    # The claim arrived before this process's graph knew the peer's name (the graph
+    # lags the data): the claim holds, until the graph has had ample time to list it.
+    graph = Graph(publishers=(ME, '_NODE_NAMESPACE_UNKNOWN_/_NODE_NAME_UNKNOWN_'))
+    claim = graph.make()
+    claim.on_message(peer_state('lift'))
+    graph.monotonic = 29.0
+    assert claim.claim('orbit') == f'rejected: busy: lift is running ({PEER})'
+    graph.publishers = [ME, PEER]       # listed now: held for as long as it stays listed
+    graph.monotonic = 100.0
+    assert claim.claim('orbit') == f'rejected: busy: lift is running ({PEER})'
+    graph.publishers = [ME]             # and forgotten once the graph shows it gone
+    assert claim.claim('orbit') is None
+
+
+def test_a_peer_never_listed_is_forgotten_after_the_grace():
+    graph = Graph(publishers=(ME,))
+    claim = graph.make()
+    claim.on_message(peer_state('lift'))   # the peer died before the graph listed it
+    graph.monotonic = 30.5
+    assert claim.claim('orbit') is None
+
+
+def test_a_message_reports_a_changed_peer_state_only():
+    claim = Graph(publishers=(ME, PEER)).make()
+    assert claim.on_message(peer_state(skill=''))['skill'] == ''
+    assert claim.on_message(peer_state(skill='')) is None        # the same again
+    assert claim.on_message(peer_state('lift'))['skill'] == 'lift'
+    assert claim.on_message(peer_state('lift')) is None
+    assert claim.on_message(peer_state(skill=''))['skill'] == ''
+    assert claim.on_message(encode_state(ME, None)) is None      # its own
+    assert claim.on_message('not json') is None
 
 
 def test_idle_peers_and_own_or_malformed_messages_do_not_block():

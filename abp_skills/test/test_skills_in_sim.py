@@ -35,12 +35,6 @@ def executable(package, name):
     return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
 
 
-# Three processes (sim bridge, perception, skills) against sim time on a loaded 2-core
-# machine: a starved process can still miss a deadline (issue 14). A real fault fails
-# every rerun.
-pytestmark = pytest.mark.flaky(reruns=2, reruns_delay=2)
-
-
 @pytest.fixture
 def sim_graph(ros_processes, rclpy_context):
     """Start the sim bridge (given hidden mass), perception and the skill servers."""

@@ -26,8 +26,10 @@ except ImportError:
 from action_msgs.msg import GoalStatus  # noqa: E402
 from geometry_msgs.msg import Twist  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from unique_identifier_msgs.msg import UUID  # noqa: E402
 
@@ -35,12 +37,6 @@ from abp_common import qos  # noqa: E402
 from abp_common.qos import RELIABLE  # noqa: E402
 from abp_common.server_handshake import wait_until_answering  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
-
-# Known races under CI load (two busy loops beside the suite) that are not fixed yet
-# (issue 14): the one-skill-at-a-time claim between two server processes travels on a
-# topic and can arrive after the second goal; a skill timeout can fall before or after the
-# arms move. A real fault fails every rerun.
-pytestmark = pytest.mark.flaky(reruns=2, reruns_delay=2)
 
 FAKE_ROBOT = Path(__file__).with_name('fake_robot.py')
 # Fast motions so that the tests stay short (the defaults are for the real robot).
@@ -158,6 +154,23 @@ class Harness:
         self.node.destroy_client(client)
         return {a: (ok, r) for a, ok, r in zip(res.actions, res.feasible, res.reasons)}
 
+    def set_parameter(self, node, name, value, timeout=30.0):
+        """Set a parameter of a node over its service (asked again when an answer is lost
+        in discovery: setting it twice does no harm)."""
+        client = self.node.create_client(SetParameters, f'{node}/set_parameters')
+        assert self.spin(client.service_is_ready, 20), f'no {node}/set_parameters'
+        request = SetParameters.Request(
+            parameters=[Parameter(name, value=value).to_parameter_msg()])
+        deadline = time.monotonic() + timeout
+        while True:
+            future = client.call_async(request)
+            if self.spin(future.done, 3.0):
+                break
+            client.remove_pending_request(future)
+            assert time.monotonic() < deadline, f'{node}/set_parameters did not answer'
+        self.node.destroy_client(client)
+        assert all(r.successful for r in future.result().results), future.result()
+
     def odom_after_now(self, timeout=20.0):
         """The odometry of a /odom message stamped after now (the fake robot stamps it
         on this machine's clock): what the robot did after, not a message still in the
@@ -274,10 +287,13 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     start_robot(ros_processes, '--cmd-timeout', '1e9')
     # Separate processes: the one-skill-at-a-time rule goes through /abp/skills/active.
     start_server(ros_processes, 'orbit_server')
-    start_server(ros_processes, 'lift_server')
+    lift_server = start_server(ros_processes, 'lift_server')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('ORBIT_180', lambda a: a[0])[0]
+    # The lift server has found the orbit server on the claims topic (discovery done):
+    # the ORBIT's claim will reach it while the ORBIT runs.
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 60)
 
     feedback = []
     _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=180.0), feedback)
@@ -286,7 +302,9 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
         pytest.fail(f'the orbit never reached its arc: {res.status} {res.result.reason}')
     assert tester.spin(lambda: abs(tester.odom[3].linear.x) > 0.05, 5), 'base not moving'
 
-    # A second skill while ORBIT runs (in another process) is rejected with a reason.
+    # A second skill while ORBIT runs (in another process) is rejected with a reason. The
+    # claim travels on a topic: the LIFT goes once the lift server says it has the claim.
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: orbit running', 30)
     _, lift = tester.send(Lift, 'lift', Lift.Goal())
     res = tester.result(lift, 10)
     assert res.status == GoalStatus.STATUS_ABORTED
@@ -324,6 +342,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     assert all(c[1:] == (0.0, 0.0) for c in after), f'motion commands after the stop: {after}'
 
     # The claim was released: LIFT now runs (and is cancelled in its approach).
+    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 30)
     feedback = []
     _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
     assert tester.spin(lambda: any(f.phase == 'approach' and f.progress > 0.05
@@ -371,21 +390,27 @@ def test_orbit_and_lift_run_to_completion(ros_processes, tester):
 
 
 def test_an_aborted_manual_skill_brings_the_arms_home(ros_processes, tester):
-    # A skill timeout shorter than the LIFT aborts it with the arms out; the server then
-    # brings them home (phase 'recover') so that they neither hold nor hide the cube.
-    start_robot(ros_processes)
-    start_server(ros_processes, 'skill_servers', timeout=1.5)
+    # A skill timeout aborts the LIFT with the arms out; the server then brings them home
+    # (phase 'recover', on its own time limit) so that they neither hold nor hide the cube.
+    # The robot blocks the arms halfway through their first motion, and the timeout is
+    # shortened only once they are blocked there: the abort finds the arms out whatever
+    # the load (a timeout set at start could fall before they left home).
+    robot = start_robot(ros_processes, '--block-arms')
+    # Long enough that the blocked arms are not given up on before the timeout is set.
+    start_server(ros_processes, 'skill_servers', settle_timeout=60.0)
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('LIFT', lambda a: a[0])[0]
     feedback = []
     _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
+    ros_processes.wait_for_line(robot, 'arms blocked', 60)
+    tester.set_parameter('/skill_servers', 'timeout', 1.0)
     res = tester.result(lift, 60)
     assert res.status == GoalStatus.STATUS_ABORTED, res.result.reason
-    # The timeout can fall before the arms left home on a starved machine: then there is
-    # nothing to bring back, and the reason says they are home all the same.
     assert res.result.reason.startswith('timeout') and res.result.reason.endswith(
-        'arms back home'), res.result.reason
+        '; arms back home'), res.result.reason
+    assert tester.spin(lambda: any(f.phase == 'recover' for f in feedback), 10), \
+        'no recover phase'
 
 
 @pytest.mark.parametrize('override, expected', [

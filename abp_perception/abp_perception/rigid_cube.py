@@ -43,11 +43,12 @@ covariance is that of its centre and rotation, ``A C A^T`` with
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+from abp_belief.cube import CUBE_ROTATIONS
 
 __all__ = ['CubePose', 'CUBE_GROUP', 'face_placements', 'fit_cubes', 'group_tags']
 
@@ -64,19 +65,8 @@ _POSITION_FLOOR = 1e-4       # m
 _ROTATION_FLOOR = 1e-3       # rad
 
 
-def _cube_group() -> np.ndarray:
-    """The 24 proper signed permutation matrices (docs/MODEL.md's canonical order)."""
-    out = []
-    for perm in itertools.permutations((0, 1, 2)):
-        for sign in itertools.product((1, -1), repeat=3):
-            q = np.zeros((3, 3))
-            q[np.arange(3), perm] = sign
-            if np.linalg.det(q) > 0:
-                out.append(q)
-    return np.array(out)
-
-
-CUBE_GROUP = _cube_group()                                   # (24, 3, 3)
+# The 24 proper rotations of the cube, docs/MODEL.md's canonical order.
+CUBE_GROUP = CUBE_ROTATIONS                                  # (24, 3, 3)
 # _RELATIVE[a, b]: index of Q_a^T Q_b (the placement of b seen from a's frame).
 _RELATIVE = np.argmin(np.abs(np.einsum('aji,bjk->abik', CUBE_GROUP, CUBE_GROUP)[:, :, None]
                              - CUBE_GROUP[None, None]).sum(axis=(3, 4)), axis=2)

@@ -90,6 +90,7 @@ class PlannerNode(Node):
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
+        self._skills_at_start = []  # skill servers there when the episode started
         self._mode = values['planner_mode']
         self.health = NodeHealth(self)
         self._belief_stamps = self.health.stamp_check()
@@ -183,6 +184,7 @@ class PlannerNode(Node):
             goal = goal_handle.request
             params = read_all(self, PLANNER_SPECS)
             self._goal_handle = goal_handle
+            self._skills_at_start = []  # taken again at the episode's belief reset
             self._mode = goal.planner_mode or params['planner_mode']
             planner = make_planner(self._mode, self.model_set, alpha=params['alpha'],
                                    seed=params['planner_seed'],
@@ -233,6 +235,9 @@ class PlannerNode(Node):
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
     def reset_belief(self):
         self._known_belief_publishers = self._belief_publishers()
+        if not self._skills_at_start:
+            self._skills_at_start = [skill for skill, client in self._skill_clients.items()
+                                     if client.server_is_ready()]
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
         response = self._call(self._reset, ResetBelief.Request(), 10.0)
@@ -274,8 +279,9 @@ class PlannerNode(Node):
             missing.append(BELIEF_NODE)
         if self._observation_sub.get_publisher_count() == 0:
             missing.append(f'aspect observations ({names.ASPECT_OBSERVATION})')
-        skills = [skill for skill, client in self._skill_clients.items()
-                  if not client.server_is_ready()]
+        # Only servers the episode started with: a graph may run a subset of the skills.
+        skills = [skill for skill in self._skills_at_start
+                  if not self._skill_clients[skill].server_is_ready()]
         if skills:
             missing.append(f'skill server{"s" if len(skills) > 1 else ""} '
                            f'({", ".join(names.skill_action(s) for s in skills)})')

@@ -156,6 +156,7 @@ supervise() {
     restarts=$((restarts + 1))
     echo "[start_graph] $name exited with code $rc; restarting it (restart $restarts)" | tee -a "$log" >&2
     sleep 1
+    [ "$stopping" = 1 ] && exit "$rc"  # stopped during the pause: no restart
   done
 }
 

@@ -18,12 +18,14 @@ finds that graph's Recognize server.
 import argparse
 import json
 import math
+import signal
 import sys
 import time
 
 import rclpy
 from action_msgs.msg import GoalStatus
 from rclpy.action import ActionClient
+from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from abp_common import names, qos
@@ -125,7 +127,12 @@ def spin_until(node, predicate, timeout):
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse_args(remove_ros_args(['recognize', *argv])[1:])
-    rclpy.init(args=['recognize', *argv])
+    # Ctrl-C must reach the code below as KeyboardInterrupt, with the context still up, so
+    # that the goal can be cancelled: rclpy's own handler would shut the context down first.
+    # Set explicitly: a shell script's background job starts with SIGINT ignored.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)
+    rclpy.init(args=['recognize', *argv], signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node('recognize_client')
     tracer = Tracer(node)
     client = ActionClient(node, Recognize, names.RECOGNIZE)

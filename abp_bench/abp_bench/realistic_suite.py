@@ -381,6 +381,21 @@ def _q(values, q, scale=1.0, fmt='.1f'):
     return format(scale * float(np.percentile(v, q)), fmt) if v.size else 'n/a'
 
 
+def condition_bucket_lines(rows, key, bins, unit):
+    """Markdown lines of a condition x `key`-bucket table of recall, ours / OpenCV."""
+    head = '| condition | ' + ' | '.join(f'{lo:g}-{hi:g}{unit}' for lo, hi in bins) + ' |'
+    lines = [head, '|---|' + '---|' * len(bins)]
+    for cond in CONDITIONS:
+        cells = []
+        for lo, hi in bins:
+            sel = [r for r in rows if r['condition'] == cond and lo <= r[key] < hi]
+            worse = sum(r['ours'] for r in sel) < sum(r['cv'] for r in sel)
+            mark = ' **(worse)**' if worse else ''
+            cells.append(f"{_pct(sel, 'ours')} / {_pct(sel, 'cv')}{mark}")
+        lines.append(f'| {cond} | ' + ' | '.join(cells) + ' |')
+    return lines
+
+
 def bucket_table(rows, key, bins, label):
     out = [f'| {label} | tags | recall ours | recall OpenCV '
            '| position error median ours / OpenCV (mm) | rotation error p95 ours / OpenCV (°) |',
@@ -474,28 +489,10 @@ def section(rows, frames, command, per_condition):
         '### By viewing angle (from the tag normal), every condition', '',
         bucket_table(rows, 'angle', ANGLE_BINS, 'angle (°)'), '',
         '### By distance and condition (recall ours / OpenCV)', '',
+        *condition_bucket_lines(rows, 'distance', DISTANCE_BINS, ' m'),
+        '', '### By viewing angle and condition (recall ours / OpenCV)', '',
+        *condition_bucket_lines(rows, 'angle', ANGLE_BINS, '°'),
     ]
-    head = '| condition | ' + ' | '.join(f'{lo:g}-{hi:g} m' for lo, hi in DISTANCE_BINS) + ' |'
-    lines += [head, '|---|' + '---|' * len(DISTANCE_BINS)]
-    for cond in CONDITIONS:
-        cells = []
-        for lo, hi in DISTANCE_BINS:
-            sel = [r for r in rows if r['condition'] == cond and lo <= r['distance'] < hi]
-            worse = sum(r['ours'] for r in sel) < sum(r['cv'] for r in sel)
-            mark = ' **(worse)**' if worse else ''
-            cells.append(f"{_pct(sel, 'ours')} / {_pct(sel, 'cv')}{mark}")
-        lines.append(f'| {cond} | ' + ' | '.join(cells) + ' |')
-    lines += ['', '### By viewing angle and condition (recall ours / OpenCV)', '']
-    head = '| condition | ' + ' | '.join(f'{lo:g}-{hi:g}°' for lo, hi in ANGLE_BINS) + ' |'
-    lines += [head, '|---|' + '---|' * len(ANGLE_BINS)]
-    for cond in CONDITIONS:
-        cells = []
-        for lo, hi in ANGLE_BINS:
-            sel = [r for r in rows if r['condition'] == cond and lo <= r['angle'] < hi]
-            worse = sum(r['ours'] for r in sel) < sum(r['cv'] for r in sel)
-            mark = ' **(worse)**' if worse else ''
-            cells.append(f"{_pct(sel, 'ours')} / {_pct(sel, 'cv')}{mark}")
-        lines.append(f'| {cond} | ' + ' | '.join(cells) + ' |')
     lines += ['', '### Rotation error of tags on cubes with ≥ 2 tags found (issue 16, item 3)',
               '', rigid_rows_table(rows), '']
     return '\n'.join(lines)

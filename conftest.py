@@ -177,12 +177,14 @@ def answering():
     return action_server_answers
 
 
-def call_until_answered(executor, client, request, timeout, attempt_s=3.0):
-    """Call a service that is safe to ask twice, asking again every `attempt_s`: DDS
+def call_until_answered(executor, client, request, timeout, attempt_s=3.0, ready_timeout=None):
+    """Call a service that is safe to ask twice, asking again every `attempt_s` for up to
+    `timeout` s once the service is there (within `ready_timeout`, default `timeout`): DDS
     drops a reply to a client the server has not discovered yet. Returns the response."""
-    deadline = time.monotonic() + timeout
-    assert spin_until(executor, client.service_is_ready, timeout), \
+    assert spin_until(executor, client.service_is_ready,
+                      timeout if ready_timeout is None else ready_timeout), \
         f'no {client.srv_name} service'
+    deadline = time.monotonic() + timeout
     while True:
         future = client.call_async(request)
         if spin_until(executor, future.done, attempt_s):

@@ -79,12 +79,13 @@ def test_services_answer_across_processes(echo_process, node, call_service):
     reset = node.create_client(ResetBelief, '/roundtrip/reset_belief')
 
     request = CheckFeasibility.Request(actions=['PUSH', 'LIFT', 'FLIP'])
-    answer = call_service(executor, feasibility, request, 20)
+    answer = call_service(executor, feasibility, request, 10, ready_timeout=20)
     assert list(answer.actions) == ['PUSH', 'LIFT', 'FLIP']
     assert list(answer.feasible) == [True, False, True]
     assert answer.reasons[1] == 'unreachable: LIFT'
 
-    answer = call_service(executor, reset, ResetBelief.Request(model_prior=[0.5, 0.25, 0.25]), 20)
+    answer = call_service(executor, reset, ResetBelief.Request(model_prior=[0.5, 0.25, 0.25]),
+                          10, ready_timeout=20)
     assert answer.success
     assert answer.message == 'reset with 3 prior entries'
 

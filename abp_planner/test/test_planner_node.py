@@ -65,7 +65,8 @@ def client(rclpy_context):
     node.destroy_node()
 
 
-def recognize(executor, action_client, spin, answering, goal, feedback=None, timeout=120):
+def send_goal(executor, action_client, spin, answering, goal, feedback=None):
+    """Send `goal` once the server answers; returns the accepted goal's handle."""
     assert answering(executor, action_client, 30), 'no /abp/recognize server'
     send = action_client.send_goal_async(
         goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback is not None
@@ -73,7 +74,12 @@ def recognize(executor, action_client, spin, answering, goal, feedback=None, tim
     assert spin(executor, send.done, 10)
     handle = send.result()
     assert handle.accepted
-    result = handle.get_result_async()
+    return handle
+
+
+def recognize(executor, action_client, spin, answering, goal, feedback=None, timeout=120):
+    result = send_goal(executor, action_client, spin, answering, goal,
+                       feedback).get_result_async()
     assert spin(executor, result.done, timeout), 'recognition did not finish'
     return result.result()
 
@@ -147,11 +153,9 @@ def test_a_respawned_belief_node_is_reobserved_and_the_goal_still_succeeds(
         ros_processes, client, spin, answering):
     node, executor, action_client, executed, plans = client
     graph = start_graph(ros_processes, 11)
-    assert answering(executor, action_client, 30)
-    send = action_client.send_goal_async(Recognize.Goal(planner_mode='abp', max_actions=30,
-                                                        posterior_threshold=0.99))
-    assert spin(executor, send.done, 10) and send.result().accepted
-    result = send.result().get_result_async()
+    result = send_goal(executor, action_client, spin, answering,
+                       Recognize.Goal(planner_mode='abp', max_actions=30,
+                                      posterior_threshold=0.99)).get_result_async()
     assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
     # kill -9 (no goodbye on DDS), then a new belief node, as a respawning launcher does.
     os.killpg(graph['belief'].pid, signal.SIGKILL)
@@ -168,11 +172,9 @@ def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client,
                                                           answering):
     node, executor, action_client, executed, plans = client
     graph = start_graph(ros_processes, 11, planner_params=['-p', 'node_return_timeout:=5.0'])
-    assert answering(executor, action_client, 30)
-    send = action_client.send_goal_async(Recognize.Goal(planner_mode='abp', max_actions=30,
-                                                        posterior_threshold=0.99))
-    assert spin(executor, send.done, 10) and send.result().accepted
-    result = send.result().get_result_async()
+    result = send_goal(executor, action_client, spin, answering,
+                       Recognize.Goal(planner_mode='abp', max_actions=30,
+                                      posterior_threshold=0.99)).get_result_async()
     assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
     # The world serves the skills and the observations: both are gone for good.
     os.killpg(graph['world'].pid, signal.SIGKILL)
@@ -186,10 +188,8 @@ def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client,
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):
     node, executor, action_client, executed, plans = client
     start_graph(ros_processes, 3)
-    assert answering(executor, action_client, 30)
-    send = action_client.send_goal_async(Recognize.Goal(max_actions=30, posterior_threshold=0.999))
-    assert spin(executor, send.done, 10)
-    handle = send.result()
+    handle = send_goal(executor, action_client, spin, answering,
+                       Recognize.Goal(max_actions=30, posterior_threshold=0.999))
     assert spin(executor, lambda: len(executed) >= 1, 30)
     cancel = handle.cancel_goal_async()
     assert spin(executor, cancel.done, 10)

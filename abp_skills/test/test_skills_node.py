@@ -78,7 +78,8 @@ class Harness:
     """The test's own node: a perception stand-in (publishes the cube estimate from the
     fake odometry) and recorders of the robot commands."""
 
-    def __init__(self, context):
+    def __init__(self, context, call_service):
+        self.call_service = call_service  # the root conftest's call_until_answered
         self.node = rclpy.create_node('skills_tester', context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
@@ -141,16 +142,9 @@ class Harness:
         before the server's response writer has matched the client (DDS discovery is
         not symmetric): that answer is lost, so an unanswered request is sent again."""
         client = self.node.create_client(CheckFeasibility, '/abp/skills/check_feasibility')
-        assert self.spin(client.service_is_ready, 20), 'no feasibility service'
-        request = CheckFeasibility.Request(actions=list(actions))
-        deadline = time.monotonic() + 30.0
-        while True:
-            future = client.call_async(request)
-            if self.spin(future.done, 3.0):
-                break
-            client.remove_pending_request(future)
-            assert time.monotonic() < deadline, 'no answer in time'
-        res = future.result()
+        res = self.call_service(self.executor, client,
+                                CheckFeasibility.Request(actions=list(actions)), 30.0,
+                                attempt_s=3.0, ready_timeout=20.0)
         self.node.destroy_client(client)
         return {a: (ok, r) for a, ok, r in zip(res.actions, res.feasible, res.reasons)}
 
@@ -226,8 +220,8 @@ class Harness:
 
 
 @pytest.fixture
-def tester(rclpy_context):
-    t = Harness(rclpy_context)
+def tester(rclpy_context, call_service):
+    t = Harness(rclpy_context, call_service)
     yield t
     t.close()
 

@@ -25,6 +25,7 @@ from multiprocessing import get_context
 import numpy as np
 from tqdm import tqdm
 
+from abp_belief.cube import ACTIONS
 from abp_planner.planner import PLANNER_NAMES, make_planner
 from abp_planner.simulator import MAX_ACTIONS, STOP_POSTERIOR, run_trial, trial_rngs
 from abp_planner.stopping import (
@@ -98,6 +99,7 @@ def _worker_trial(task):
     # The random planner's own stream is per trial too, so results do not
     # depend on how trials are spread over workers.
     planner = make_planner(planner_name, ms, seed=seed * 1_000_003 + trial, **options)
+    refused = frozenset(options.get('refuse') or ())
     result = run_trial(
         world,  # outcomes and observations of the true object; planner and filter use ms
         planner,
@@ -105,6 +107,7 @@ def _worker_trial(task):
         noise_rng,
         belief_filter=bf,
         stopping=stopping,
+        feasible=(lambda action: action not in refused) if refused else None,
     )
     return label, planner_name, trial, result.as_dict()
 
@@ -351,6 +354,9 @@ def parse_args(argv):
     p.add_argument('--belief-models', metavar='FILE',
                    help='transition tables of the belief and the planner (e.g. a learn_atg '
                    'file); default: the hand-written ones')
+    p.add_argument('--refuse', nargs='+', default=[], choices=ACTIONS, metavar='ACTION',
+                   help='actions the feasibility check refuses at every decision (as when '
+                   'IK fails or a grasp keeps slipping), e.g. --refuse LIFT FLIP')
     p.add_argument('--jobs', type=int, default=1, help='worker processes')
     p.add_argument('--json', help='write summaries and every trial here')
     p.add_argument('--plot', help='write the Fig. 3-style belief plot (PNG) here')
@@ -390,6 +396,7 @@ def main(argv=None) -> int:
         'planning_budget_s': args.planning_budget_s,
         'belief_models': args.belief_models,
         'world_models': args.world_models,
+        'refuse': tuple(args.refuse),
     }
     tasks = [
         (label, name, trial, args.seed, options)
@@ -421,7 +428,8 @@ def main(argv=None) -> int:
     print(f"\n({len(tasks)} trials in {time.perf_counter() - start:.1f} s wall, seed {args.seed}, "
           f"alpha {args.alpha}, stop {args.stop}, target error {args.target_error:g}"
           f"{' with fault margin' if args.fault_margin else ''}, "
-          f"planning budget {args.planning_budget_s} s; tables: belief "
+          f"planning budget {args.planning_budget_s} s"
+          f"{'; refused ' + ' '.join(args.refuse) if args.refuse else ''}; tables: belief "
           f"{args.belief_models or 'hand-written'}, world {args.world_models or 'same'})")
     curves = {}
     if args.stop_curve:

@@ -5,7 +5,10 @@ failed skill, how long to wait for evidence.
 check the stopping rule and cancellation, ask the planner for the best feasible action
 (retrying while nothing is feasible, for up to the observation timeout), run the skill,
 announce it, and wait for the belief that includes the action's evidence. A failed
-skill is left out of the next decision (re-plan) unless nothing else is feasible
+skill is left out of the next decision (re-plan), and a skill that failed
+`skill_failure_limit` times in the episode is left out of every later one (a grasp
+that slipped twice will likely slip again, and its expected gain stays high because
+a failure brings no evidence); either comes back only when nothing else is feasible
 (retry). Before each decision, and whenever a skill fails or no fresh evidence comes,
 the runner asks which nodes it needs are gone; it then pauses until they are back (for
 up to `node_return_timeout_s`), re-observes (from a reset belief if the belief node was
@@ -17,6 +20,7 @@ publishers and the graph's view of the nodes. Time comes from the injected `cloc
 """
 
 import time
+from collections import Counter
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -147,13 +151,15 @@ class EpisodeRunner:
     logger: info / warning / error (an rclpy or a logging logger)."""
 
     def __init__(self, planner, ports, num_nodes, stopping, observation_timeout_s, logger,
-                 clock=time.monotonic, sleep=time.sleep, node_return_timeout_s=60.0):
+                 clock=time.monotonic, sleep=time.sleep, node_return_timeout_s=60.0,
+                 skill_failure_limit=2):
         self.planner = planner
         self.ports = ports
         self.num_nodes = int(num_nodes)
         self.stopping = stopping
         self.observation_timeout_s = float(observation_timeout_s)
         self.node_return_timeout_s = float(node_return_timeout_s)
+        self.skill_failure_limit = int(skill_failure_limit)
         self.log = logger
         self.clock = clock
         self.sleep = sleep
@@ -164,6 +170,7 @@ class EpisodeRunner:
         try:
             belief = self._start()
             refused_after_failure = set()
+            failures = Counter()
             while True:
                 check = self.stopping.check(belief, actions_taken)
                 if check.stop:
@@ -172,7 +179,8 @@ class EpisodeRunner:
                 if ports.cancel_requested():
                     return EpisodeResult(CANCELED, False, 'cancelled', actions_taken, belief)
                 belief = self._wait_for_lost_nodes(belief)
-                decision, feasible = self._decide(belief, refused_after_failure)
+                given_up = {a for a, n in failures.items() if n >= self.skill_failure_limit}
+                decision, feasible = self._decide(belief, refused_after_failure | given_up)
                 ports.publish_plan(decision, feasible)
                 ports.publish_feedback(belief, decision, actions_taken)
                 self.log.info(
@@ -193,6 +201,12 @@ class EpisodeRunner:
                     # Re-plan without the action that just failed, once.
                     self.log.warning(f'{decision.action} failed: {reason}; re-planning')
                     refused_after_failure.add(decision.action)
+                    failures[decision.action] += 1
+                    if failures[decision.action] == self.skill_failure_limit:
+                        self.log.warning(
+                            f'{decision.action} failed {self.skill_failure_limit} times in '
+                            'this episode: not choosing it again unless nothing else is '
+                            'feasible')
                     expected_step = step_before + 1  # a fresh correction only
                 belief = self._wait_for_evidence(expected_step, step_before) or belief
         except _Cancelled:
@@ -240,7 +254,7 @@ class EpisodeRunner:
         latest = self.ports.wait_for_belief(lambda b: True, self.observation_timeout_s)
         return latest if latest is not None else belief
 
-    def _decide(self, belief, refused_after_failure):
+    def _decide(self, belief, excluded):
         """The planner's choice among the feasible actions: (decision, feasibility).
 
         "Nothing feasible" is often transient (the skills have not yet seen a cube
@@ -253,14 +267,14 @@ class EpisodeRunner:
             feasible = self.ports.check_feasibility()
 
             def allowed(action, feasible=feasible):
-                return feasible.get(action, (True, ''))[0] and action not in refused_after_failure
+                return feasible.get(action, (True, ''))[0] and action not in excluded
 
             try:
                 return self.planner.choose(nodes, feasible=allowed), feasible
             except RuntimeError as error:
-                if refused_after_failure:
-                    # Every other action is infeasible: allow a retry of the failed one.
-                    refused_after_failure.clear()
+                if excluded:
+                    # Every other action is infeasible: allow a retry of the failed ones.
+                    excluded = set()
                     continue
                 if self.clock() > deadline:
                     reasons = '; '.join(f'{a}: {r}' for a, (ok, r) in feasible.items() if not ok)

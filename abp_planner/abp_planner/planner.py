@@ -230,6 +230,7 @@ class ActiveBeliefPlanner:
         self.planning_budget_s = None if planning_budget_s is None else float(planning_budget_s)
         self.clock = time.perf_counter if clock is None else clock
         self._deadline = None  # set only while a budgeted search runs
+        self._follow_ups = None  # set only while choose() runs: see _allowed_mask
         self.name = name or ('cost' if cost_aware else ('abp' if plies == 1 else f'abp{plies}'))
 
         ms = model_set
@@ -297,6 +298,8 @@ class ActiveBeliefPlanner:
             self._open_loop = False
         gain1 = h0 - table[:, 0]
         rate2 = (h0 - table[:, 1:]) / (self.duration[:, None] + self.duration[None, :])
+        if self._follow_ups is not None:
+            rate2 = rate2[:, self._follow_ups]
         return np.maximum(gain1 / self.duration, rate2.max(axis=1)), gain1, h0
 
     def choose(self, belief, feasible=None) -> Decision:
@@ -317,6 +320,23 @@ class ActiveBeliefPlanner:
         """
         belief = np.asarray(getattr(belief, 'belief', belief), dtype=np.float64)
         start = time.perf_counter()
+        try:
+            self._follow_ups = self._allowed_mask(feasible)
+            return self._choose(belief, feasible, start)
+        finally:
+            self._follow_ups = None
+
+    def _allowed_mask(self, feasible):
+        """Actions a deeper ply may plan as follow-ups: the ones feasible now. An
+        action refused now is assumed refused later too; planning on it would
+        credit a preparatory move with a gain that never comes (with LIFT and
+        FLIP refused, abp2 and cost stalled on ORBIT before this mask)."""
+        if feasible is None:
+            return None
+        mask = np.array([bool(feasible(a)) for a in ACTIONS])
+        return mask if mask.any() else None  # nothing feasible: choose() raises
+
+    def _choose(self, belief, feasible, start) -> Decision:
         budgeted = self.planning_budget_s is not None and self.plies > 1
         deadline = self.clock() + self.planning_budget_s if budgeted else None
         depth = 1 if budgeted else self.plies
@@ -529,7 +549,12 @@ class ActiveBeliefPlanner:
             child_mass = post[keep] / post[keep].sum()
             child_h0 = self._entropy_of(child_nodes, child_mass)
             next_values = self._values(child_nodes, child_mass, child_h0, depth - 1)
-            best_next = next_values if open_loop else next_values.min()
+            if open_loop:
+                best_next = next_values
+            elif self._follow_ups is None:
+                best_next = next_values.min()
+            else:
+                best_next = next_values[self._follow_ups].min()
             # The reduction is measured on the truncated child against its own
             # entropy: dropping the tail must not pass for information gained.
             further = further + weight[j] * (hold * child_h0 - best_next)

@@ -34,6 +34,10 @@ PLANNER_SPECS = (
     ParamSpec('node_return_timeout', DOUBLE, 60.0, 'Seconds an episode stays paused for a '
               'node it needs (belief, perception, skill servers) to come back before the '
               'Recognize goal is aborted naming it.', (0.0, 3600.0)),
+    ParamSpec('skill_failure_limit', INT, 2, 'Failures of one skill in an episode after '
+              'which the planner stops choosing it for the rest of the episode (it comes back '
+              'only when nothing else is feasible). A failed skill is always left out of the '
+              'next decision.', (1, 1000)),
     ParamSpec('use_feasibility', BOOL, True, 'Ask abp/skills/check_feasibility before each '
               'decision; infeasible actions fall through to the next best.'),
     ParamSpec('planner_seed', INT, 0, 'Seed of the random planner.', (0, 2**31 - 1)),

@@ -192,7 +192,8 @@ class PlannerNode(Node):
             stopping = RuleStop(self._stopping_rule(goal, params), self.model_set.num_nodes)
             runner = EpisodeRunner(planner, self, self.model_set.num_nodes, stopping,
                                    params['observation_timeout'], self.get_logger(),
-                                   node_return_timeout_s=params['node_return_timeout'])
+                                   node_return_timeout_s=params['node_return_timeout'],
+                                   skill_failure_limit=params['skill_failure_limit'])
             started = self.get_clock().now()
             episode = runner.run()
             return self._finish(goal_handle, episode, started)

@@ -124,12 +124,13 @@ class FakePorts:
         self.executed.append((action, sequence, success, reason))
 
 
-def run(ports, planner=None, threshold=0.95, max_actions=30, timeout=20.0, node_return=60.0):
+def run(ports, planner=None, threshold=0.95, max_actions=30, timeout=20.0, node_return=60.0,
+        failure_limit=2):
     clock = ports.clock
     runner = EpisodeRunner(planner or FakePlanner(), ports, NUM_NODES,
                            PosteriorStop(threshold, max_actions), timeout,
                            logging.getLogger('episode'), clock=clock, sleep=clock.sleep,
-                           node_return_timeout_s=node_return)
+                           node_return_timeout_s=node_return, skill_failure_limit=failure_limit)
     return runner.run()
 
 
@@ -221,6 +222,24 @@ def test_failed_action_is_left_out_of_the_next_decision():
     assert ports.executed[0] == ('ORBIT_P45', 1, False, 'ORBIT_P45 slipped')
     # After a success the failed action may be chosen again.
     assert ports.skills[2] == 'ORBIT_P45'
+
+
+def test_a_skill_that_keeps_failing_is_given_up_for_the_episode():
+    # The planner prefers LIFT, which always slips: after the second failure it is
+    # never chosen again, although it would be after a success in between.
+    planner = FakePlanner(['LIFT', 'PUSH'])
+    ports = FakePorts(FakeClock(), gain=0.0, fail={'LIFT'})
+    result = run(ports, planner, max_actions=8)
+    assert ports.skills == ['LIFT', 'PUSH', 'LIFT'] + ['PUSH'] * 5
+    assert result.actions_taken == 8
+
+
+@pytest.mark.parametrize('limit', [1, 3])
+def test_the_failure_limit_is_a_parameter(limit):
+    planner = FakePlanner(['LIFT', 'PUSH'])
+    ports = FakePorts(FakeClock(), gain=0.0, fail={'LIFT'})
+    run(ports, planner, max_actions=8, failure_limit=limit)
+    assert ports.skills.count('LIFT') == limit
 
 
 def test_failed_action_is_retried_when_nothing_else_is_feasible():

@@ -224,3 +224,21 @@ def test_two_ply_and_cost_match_composition(tiny_set, which):
     np.testing.assert_allclose(score, expected, atol=1e-12)
     np.testing.assert_allclose(gain1, brute_force_ig(tiny_set, belief, 0.1), atol=1e-9)
     assert make_planner('cost', tiny_set).choose(belief).action in ACTIONS
+
+
+@pytest.mark.parametrize('which', ['abp2', 'cost'])
+def test_lookahead_plans_only_feasible_follow_ups(which):
+    # Four candidates that only the hidden bottom face or the heavy side tells apart,
+    # seen where ORBIT and PUSH reveal nothing in two steps: every two-step plan's gain
+    # comes from a LIFT or FLIP follow-up. With both refused the lookahead must not
+    # credit an ORBIT or PUSH with that gain (it did, and stalled on PUSH forever).
+    models = population.robot_set(seed=5)
+    names = ['c0-1-2-4-5-6/u', 'c0-3-2-4-5-6/u', 'c0-3-2-4-5-6/m+x', 'c0-3-2-4-5-6/m-x']
+    belief = np.zeros(models.num_nodes)
+    belief[[models.names.index(n) * STATES_PER_MODEL + 4 for n in names]] = 0.25
+    planner = make_planner(which, models, alpha=0.1)
+    free = planner.choose(belief)
+    assert free.score[:ACTIONS.index('LIFT')].max() > 0.5 * free.score.max() > 0
+    constrained = planner.choose(belief, lambda a: a not in ('LIFT', 'FLIP'))
+    assert constrained.action not in ('LIFT', 'FLIP')
+    assert constrained.score[:ACTIONS.index('LIFT')].max() < 1e-6

@@ -29,13 +29,15 @@
 #   --no-respawn         do not restart a node that dies (by default a node that dies is
 #                        restarted, unless it stopped cleanly, exited with a configuration
 #                        error, or died 3 times within 10 s of starting)
+#   --serve              start the graph and keep it up without sending a goal, until Ctrl-C
+#                        or SIGTERM (for a driver that sends its own goals, e.g. abp_bench.soak)
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
-respawn=1
-usage() { sed -n '2,31p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+respawn=1; serve=0
+usage() { sed -n '2,33p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -43,6 +45,7 @@ while [ $# -gt 0 ]; do
     --world) world="${2:?--world needs a value}"; shift 2 ;;
     --no-build) build=0; shift ;;
     --no-respawn) respawn=0; shift ;;
+    --serve) serve=1; shift ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
@@ -220,6 +223,13 @@ if [ -n "$record" ]; then
     grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null \
       || echo "[start_graph] warning: the recorder has heard nothing on $topic after 30 s" >&2
   done
+fi
+
+if [ "$serve" = 1 ]; then
+  echo "[start_graph] graph up: serving until Ctrl-C (no goal sent)"
+  # `wait` returns at once when a trapped signal arrives, so Ctrl-C still stops the graph.
+  wait || true
+  exit 0
 fi
 
 client_args=(--planner "$planner" --max-actions "$max_actions" --timeout "$timeout")

@@ -60,6 +60,8 @@ from .stopping import STOP_RULES, StoppingRule
 
 # Candidates a Recognize result lists.
 TOP_CANDIDATES = 5
+# While a skill runs: how often to check that the server that took the goal is still there.
+SERVER_CHECK_S = 1.0
 
 SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 # Planner action name -> (skill on abp/skills/<skill>, its goal).
@@ -267,6 +269,11 @@ class PlannerNode(Node):
         topic = names.absolute(names.BELIEF, self.get_namespace())
         return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
 
+    def _skill_status_publishers(self, skill):
+        topic = names.absolute(names.skill_action(skill), self.get_namespace()) + \
+            '/_action/status'
+        return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
+
     def missing_nodes(self):
         # DDS notices a killed process when its lease expires (~20 s), so a node is seen
         # gone some seconds after it died; the runner asks again before every decision.
@@ -321,7 +328,19 @@ class PlannerNode(Node):
             return False, f'{skill} goal rejected', Duration().to_msg()
         result_future = self._skill_request(send.get_result_async)
         deadline = time.monotonic() + timeout
+        # The server that took the goal, by its status publishers: if they all leave the
+        # graph (a killed server's lease ends, ~20 s), the goal died with it. A respawned
+        # server answers under the same name but never knew the goal; without this the
+        # episode waited for the whole skill_timeout.
+        servers = self._skill_status_publishers(skill)
+        next_check = time.monotonic() + SERVER_CHECK_S
         while not result_future.done():
+            if servers and time.monotonic() > next_check:
+                next_check = time.monotonic() + SERVER_CHECK_S
+                if not servers & self._skill_status_publishers(skill):
+                    return (False, f'skill server {names.skill_action(skill)} went away during '
+                            'the skill (the goal is lost)',
+                            (self.get_clock().now() - started).to_msg())
             if self.cancel_requested() or time.monotonic() > deadline:
                 why = 'cancelled' if self.cancel_requested() else \
                     f'timed out after {timeout:.0f} s'

@@ -40,7 +40,13 @@ def manual_goal_overrides(skill, goal):
 
 
 def timeout_reason(elapsed_s, limit_s):
-    """The abort reason when a skill has run longer than `limit_s`, else None."""
+    """The abort reason when a skill has run longer than `limit_s`, or when its clock went
+    back (a restarted simulator starts its /clock again from 0, with the robot and the cube
+    back at their initial poses: the motion no longer fits the world, and a timeout measured
+    on that clock would never come), else None."""
+    if elapsed_s < 0.0:
+        return (f'the clock went back {-elapsed_s:.1f} s during the skill (a restarted '
+                'simulator?)')
     if elapsed_s > limit_s:
         return f'timeout: the skill took more than {limit_s:.0f} s'
     return None

@@ -49,6 +49,7 @@ def test_manual_goals_become_config_overrides_or_refusals():
 def test_timeout_and_feedback_pacing():
     assert timeout_reason(119.9, 120.0) is None
     assert timeout_reason(120.1, 120.0) == 'timeout: the skill took more than 120 s'
+    assert timeout_reason(-3.0, 120.0).startswith('the clock went back 3.0 s')
     throttle = FeedbackThrottle(0.25)
     assert [throttle.due(t) for t in (-0.1, 0.0, 0.1, 0.15, 0.2, 0.4)] == [
         True, False, False, True, False, True]

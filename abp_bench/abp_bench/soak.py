@@ -328,7 +328,7 @@ def summarise(soak, crashes, rss, stopped, leftovers):
             lines.append(f'| {name} | {base[name] / 1024:.1f} | {last[name] / 1024:.1f} | '
                          f'{growth:+.1f} % |')
     if crashes:
-        lines += ['', '| killed node | episode outcome | reason | back (s after the kill) '
+        lines += ['', '| killed node | episode outcome | reason | seen back (s after the kill) '
                   '| next goal |',
                   '|---|---|---|---|---|']
         for c in crashes:

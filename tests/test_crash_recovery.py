@@ -1,0 +1,36 @@
+"""The crash test (issue 14): each of the six nodes killed with SIGKILL mid-episode, in
+turn, on one running graph (`python -m abp_bench.soak --episodes 0 --kill ...`, rules
+world). Each time the episode must end (correct, or aborted / lost with a reason), the
+node must be back (a new process answering a parameter request) and the next goal must
+succeed with the right object; no process of the graph may be left afterwards. The
+driver inherits this session's isolated ROS_DOMAIN_ID from the root conftest."""
+
+import json
+import subprocess
+import sys
+
+from abp_bench.soak import GRAPH_NODES
+
+
+def test_every_node_killed_mid_episode_comes_back_and_the_next_goal_succeeds(tmp_path):
+    report = tmp_path / 'crash.json'
+    proc = subprocess.run(
+        [sys.executable, '-m', 'abp_bench.soak', '--episodes', '0', '--no-build', '--kill',
+         *GRAPH_NODES, '--json', str(report)],
+        capture_output=True, text=True, timeout=2400, start_new_session=True)
+    trace = proc.stdout + proc.stderr
+    assert report.exists(), trace
+    result = json.loads(report.read_text())
+    assert result['failed'] is None, trace
+    crashes = {c['killed']: c for c in result['crashes']}
+    assert sorted(crashes) == sorted(GRAPH_NODES), trace
+    for name, crash in crashes.items():
+        if crash['outcome'] == 'succeeded':
+            assert crash['correct'], (name, trace)
+        else:
+            assert crash['outcome'] in ('aborted', 'lost') and crash['reason'], (name, trace)
+        assert crash['back_s'] is not None, (name, trace)
+        assert crash['next']['outcome'] == 'succeeded' and crash['next']['correct'], \
+            (name, trace)
+    assert result['stopped'] and not result['leftovers'], trace
+    assert proc.returncode == 0, trace

@@ -76,3 +76,15 @@ def test_runtime_packages_never_need_the_simulator_or_benchmark_tools(name):
     code, _, _ = sources(package)
     imports = set(imported_keys([p for p in code if p.parent.name != 'launch'], name))
     assert not imports & BENCH_ONLY, f'{name} imports {imports & BENCH_ONLY}'
+
+
+# Issue 11: a node file a reader can hold; the anchors' node files are 70-200 lines.
+MAX_NODE_FILE_LINES = 450
+
+
+@pytest.mark.parametrize('path', sorted(REPO.glob('abp_*/abp_*/*_node.py')),
+                         ids=lambda p: p.name)
+def test_node_file_is_short(path):
+    lines = len(path.read_text().splitlines())
+    assert lines <= MAX_NODE_FILE_LINES, \
+        f'{path.relative_to(REPO)} has {lines} lines (at most {MAX_NODE_FILE_LINES})'

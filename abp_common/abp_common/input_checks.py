@@ -164,6 +164,29 @@ def aspect_observation(msg, frames=None):
                                            f'{len(msg.features)}')
 
 
+def belief(msg, num_nodes):
+    """A belief (abp_msgs/Belief) over `num_nodes` aspect nodes that a planner can plan
+    on: as many probabilities as indices (and object ids), indices in range, finite
+    probabilities, at least one node."""
+    n = len(msg.node_indices)
+    at_most('node indices', n, num_nodes)
+    at_most('object ids', len(msg.object_ids), num_nodes)
+    if n != len(msg.node_probabilities):
+        raise Rejected('size_mismatch', f'{n} node indices but {len(msg.node_probabilities)} '
+                                        'node probabilities')
+    if len(msg.object_ids) != len(msg.probabilities):
+        raise Rejected('size_mismatch', f'{len(msg.object_ids)} object ids but '
+                                        f'{len(msg.probabilities)} probabilities')
+    if n == 0:
+        raise Rejected('empty', 'belief without any aspect node')
+    finite('node probabilities', msg.node_probabilities)
+    finite('object probabilities', msg.probabilities)
+    finite('entropy and node floor', (msg.entropy, msg.node_floor))
+    if max(msg.node_indices) >= num_nodes:
+        raise Rejected('out_of_range', f'node index {max(msg.node_indices)} of {num_nodes} '
+                                       'nodes')
+
+
 def skills_state(text, max_chars=4096):
     """The JSON of abp/skills/active: an object with a "node" string."""
     import json

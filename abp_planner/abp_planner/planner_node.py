@@ -11,24 +11,22 @@ Uses:           abp/skills/{orbit,push,lift,flip} actions, abp/skills/check_feas
 (Names are relative: /abp/... without a namespace.) The decision is
 `abp_planner.planner`, the episode (stop, re-plan, retry, wait for evidence)
 `abp_planner.episode.EpisodeRunner`; this module moves messages and implements the
-runner's `EpisodePorts` for the goal being executed. A belief that is not over this
-model set or is malformed (`check_belief`), and malformed observations, are rejected,
+runner's `EpisodePorts` for the goal being executed; `skill_clients` sends the skill
+goals. A belief that is not over this
+model set or is malformed (`input_checks.belief`), and malformed observations, are rejected,
 counted in /diagnostics and logged at most once per few seconds per kind
 (abp_common.health); the planner keeps the last good belief.
 """
 
-import queue
 import sys
 import threading
 import time
 
 import rclpy
-from rclpy.action import ActionClient, ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.duration import Duration
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
-from rclpy.task import Future
 from visualization_msgs.msg import MarkerArray
 
 from abp_belief.cube import ACTIONS
@@ -39,8 +37,7 @@ from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
-from abp_common.server_handshake import PROBE_TIMEOUT_S, ask_action_server
-from abp_msgs.action import Flip, Lift, Orbit, Push, Recognize
+from abp_msgs.action import Recognize
 from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
 from abp_msgs.srv import CheckFeasibility, ResetBelief
 
@@ -56,27 +53,11 @@ from .episode import (
 from .markers import belief_markers
 from .planner import PLANNER_NAMES, make_planner
 from .planner_config import PLANNER_SPECS
+from .skill_clients import SkillClients, call_with_retry
 from .stopping import STOP_RULES, StoppingRule
 
 # Candidates a Recognize result lists.
 TOP_CANDIDATES = 5
-# While a skill runs: how often to check that the server that took the goal is still there.
-SERVER_CHECK_S = 1.0
-
-SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
-# Planner action name -> (skill on abp/skills/<skill>, its goal).
-SKILLS = {
-    ExecutedAction.ORBIT_P45: ('orbit', lambda: Orbit.Goal(angle_deg=45.0)),
-    ExecutedAction.ORBIT_M45: ('orbit', lambda: Orbit.Goal(angle_deg=-45.0)),
-    ExecutedAction.ORBIT_P90: ('orbit', lambda: Orbit.Goal(angle_deg=90.0)),
-    ExecutedAction.ORBIT_M90: ('orbit', lambda: Orbit.Goal(angle_deg=-90.0)),
-    ExecutedAction.ORBIT_180: ('orbit', lambda: Orbit.Goal(angle_deg=180.0)),
-    ExecutedAction.PUSH: ('push', lambda: Push.Goal(face='front')),
-    ExecutedAction.LIFT: ('lift', lambda: Lift.Goal()),
-    ExecutedAction.FLIP: ('flip', lambda: Flip.Goal()),
-}
-
-
 class PlannerNode(Node):
     def __init__(self):
         super().__init__('planner')
@@ -109,20 +90,7 @@ class PlannerNode(Node):
         self._executed_pub = self.create_publisher(ExecutedAction, names.EXECUTED_ACTION,
                                                    qos.RELIABLE)
         self._markers_pub = self.create_publisher(MarkerArray, names.MARKERS, qos.LATCHED)
-        # rclpy 7.1's ActionClient registers a request only after sending it, so a reply
-        # processed by another executor thread in between is dropped ("Ignoring unexpected
-        # goal response", ros2/rclpy#1123): the planner then took a goal the server had
-        # accepted and run for a rejection. Requests are therefore made on the executor,
-        # in the clients' own mutually exclusive group, where no reply can be taken meanwhile.
-        self._skill_group = MutuallyExclusiveCallbackGroup()
-        self._skill_clients = {
-            skill: ActionClient(self, action_type, names.skill_action(skill),
-                                callback_group=self._skill_group)
-            for skill, action_type in SKILL_TYPES.items()
-        }
-        self._skill_calls = queue.SimpleQueue()
-        self._skill_call_trigger = self.create_guard_condition(
-            self._make_skill_calls, callback_group=self._skill_group)
+        self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
                                                callback_group=self._group)
         self._reset = self.create_client(ResetBelief, names.RESET_BELIEF,
@@ -146,7 +114,7 @@ class PlannerNode(Node):
                                         f"planner's ({msg.model_set_id[:12]} vs "
                                         f'{self.model_set_id[:12]}): give both nodes the '
                                         'same model-set parameters')
-        check_belief(msg, self.model_set.num_nodes)
+        input_checks.belief(msg, self.model_set.num_nodes)
         self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
         self._belief_stamps.taken(msg.header.stamp)
         with self._belief_lock:
@@ -239,11 +207,10 @@ class PlannerNode(Node):
     def reset_belief(self):
         self._known_belief_publishers = self._belief_publishers()
         if not self._skills_at_start:
-            self._skills_at_start = [skill for skill, client in self._skill_clients.items()
-                                     if client.server_is_ready()]
+            self._skills_at_start = self._skills.ready()
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
-        response = self._call(self._reset, ResetBelief.Request(), 10.0)
+        response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
         if response is None or not response.success:
             raise RecognitionAborted('belief reset failed: '
                                      f'{response.message if response else "no answer"}')
@@ -269,11 +236,6 @@ class PlannerNode(Node):
         topic = names.absolute(names.BELIEF, self.get_namespace())
         return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
 
-    def _skill_status_publishers(self, skill):
-        topic = names.absolute(names.skill_action(skill), self.get_namespace()) + \
-            '/_action/status'
-        return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
-
     def missing_nodes(self):
         # DDS notices a killed process when its lease expires (~20 s), so a node is seen
         # gone some seconds after it died; the runner asks again before every decision.
@@ -288,8 +250,8 @@ class PlannerNode(Node):
         if self._observation_sub.get_publisher_count() == 0:
             missing.append(f'aspect observations ({names.ASPECT_OBSERVATION})')
         # Only servers the episode started with: a graph may run a subset of the skills.
-        skills = [skill for skill in self._skills_at_start
-                  if not self._skill_clients[skill].server_is_ready()]
+        ready = self._skills.ready()
+        skills = [skill for skill in self._skills_at_start if skill not in ready]
         if skills:
             missing.append(f'skill server{"s" if len(skills) > 1 else ""} '
                            f'({", ".join(names.skill_action(s) for s in skills)})')
@@ -302,8 +264,8 @@ class PlannerNode(Node):
             self.get_logger().warning('feasibility service not available; assuming feasible',
                                       throttle_duration_sec=30.0)
             return {}
-        response = self._call(self._feasibility, CheckFeasibility.Request(actions=list(ACTIONS)),
-                              10.0)
+        response = call_with_retry(self._feasibility,
+                                   CheckFeasibility.Request(actions=list(ACTIONS)), 10.0)
         if response is None:
             self.get_logger().warning('feasibility service did not answer; assuming feasible')
             return {}
@@ -311,48 +273,7 @@ class PlannerNode(Node):
                 zip(response.actions, response.feasible, response.reasons)}
 
     def run_skill(self, action):
-        """Send the skill goal and wait for its result: (success, reason, duration msg)."""
-        skill, make_goal = SKILLS[action]
-        client = self._skill_clients[skill]
-        timeout = self._param('skill_timeout')
-        if not client.wait_for_server(timeout_sec=5.0):
-            return (False, f'skill server {names.skill_action(skill)} not available',
-                    Duration().to_msg())
-        if not self._server_answers(client, 5.0):
-            return (False, f'skill server {names.skill_action(skill)} does not answer',
-                    Duration().to_msg())
-        started = self.get_clock().now()
-        send = self._wait_future(self._skill_request(lambda: client.send_goal_async(make_goal())),
-                                 10.0)
-        if send is None or not send.accepted:
-            return False, f'{skill} goal rejected', Duration().to_msg()
-        result_future = self._skill_request(send.get_result_async)
-        deadline = time.monotonic() + timeout
-        # The server that took the goal, by its status publishers: if they all leave the
-        # graph (a killed server's lease ends, ~20 s), the goal died with it. A respawned
-        # server answers under the same name but never knew the goal; without this the
-        # episode waited for the whole skill_timeout.
-        servers = self._skill_status_publishers(skill)
-        next_check = time.monotonic() + SERVER_CHECK_S
-        while not result_future.done():
-            if servers and time.monotonic() > next_check:
-                next_check = time.monotonic() + SERVER_CHECK_S
-                if not servers & self._skill_status_publishers(skill):
-                    return (False, f'skill server {names.skill_action(skill)} went away during '
-                            'the skill (the goal is lost)',
-                            (self.get_clock().now() - started).to_msg())
-            if self.cancel_requested() or time.monotonic() > deadline:
-                why = 'cancelled' if self.cancel_requested() else \
-                    f'timed out after {timeout:.0f} s'
-                self._wait_future(self._skill_request(send.cancel_goal_async), 5.0)
-                self._wait_future(result_future, 10.0)
-                return False, f'{skill} {why}', (self.get_clock().now() - started).to_msg()
-            time.sleep(0.02)
-        response = result_future.result()
-        if response is None:
-            return False, f'{skill} result lost', (self.get_clock().now() - started).to_msg()
-        result = response.result
-        return bool(result.success), result.reason, result.duration
+        return self._skills.run(action, self._param('skill_timeout'), self.cancel_requested)
 
     def publish_plan(self, decision, feasible):
         msg = PlanStep(planner_mode=self._mode, action=decision.action,
@@ -377,94 +298,11 @@ class PlannerNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         self._executed_pub.publish(msg)
 
-    # -- helpers ------------------------------------------------------------------
-    def _skill_request(self, make_request):
-        """A future of `make_request()` (an ActionClient *_async call), made on the
-        executor inside the skill clients' callback group (see __init__)."""
-        outer = Future()
-        self._skill_calls.put((make_request, outer))
-        self._skill_call_trigger.trigger()
-        return outer
-
-    def _make_skill_calls(self):
-        while True:
-            try:
-                make_request, outer = self._skill_calls.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                inner = make_request()
-            except Exception as error:  # noqa: BLE001 -- handed to the waiting thread
-                outer.set_exception(error)
-                continue
-            inner.add_done_callback(lambda done, outer=outer: self._forward(done, outer))
-
-    def _forward(self, done, outer):
-        error = done.exception()
-        if error is not None:
-            self.get_logger().error(f'skill request failed: {error}')
-        outer.set_result(None if error is not None else done.result())
-
-    def _wait_future(self, future, timeout):
-        event = threading.Event()
-        future.add_done_callback(lambda _: event.set())
-        if not event.wait(timeout):
-            return None
-        return future.result()
-
-    def _server_answers(self, client, timeout):
-        """Handshake before a goal (abp_common.server_handshake): a goal sent while the
-        server has not yet discovered this client is lost, and the planner would wait out
-        the skill timeout for nothing."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            probe = self._skill_request(lambda: ask_action_server(client))
-            if self._wait_future(probe, PROBE_TIMEOUT_S) is not None:
-                return True
-        return False
-
-    def _call(self, client, request, timeout, attempt_s=2.0):
-        """Call an idempotent service (a reset, a query), asking again every `attempt_s`:
-        a reply to a client the server has not yet discovered is dropped by DDS."""
-        deadline = time.monotonic() + timeout
-        while True:
-            remaining = deadline - time.monotonic()
-            future = client.call_async(request)
-            response = self._wait_future(future, min(attempt_s, max(remaining, 0.0)))
-            if response is not None or time.monotonic() >= deadline:
-                if response is None:
-                    client.remove_pending_request(future)
-                return response
-            client.remove_pending_request(future)
-
     def _publish_markers(self):
         with self._belief_lock:
             belief = self._belief_msg
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg()))
-
-
-def check_belief(msg, num_nodes):
-    """Raise input_checks.Rejected unless `msg` is a belief over `num_nodes` aspect nodes
-    the planner can plan on: as many probabilities as indices (and object ids), indices
-    in range, finite probabilities, at least one node."""
-    n = len(msg.node_indices)
-    input_checks.at_most('node indices', n, num_nodes)
-    input_checks.at_most('object ids', len(msg.object_ids), num_nodes)
-    if n != len(msg.node_probabilities):
-        raise Rejected('size_mismatch', f'{n} node indices but {len(msg.node_probabilities)} '
-                                        'node probabilities')
-    if len(msg.object_ids) != len(msg.probabilities):
-        raise Rejected('size_mismatch', f'{len(msg.object_ids)} object ids but '
-                                        f'{len(msg.probabilities)} probabilities')
-    if n == 0:
-        raise Rejected('empty', 'belief without any aspect node')
-    input_checks.finite('node probabilities', msg.node_probabilities)
-    input_checks.finite('object probabilities', msg.probabilities)
-    input_checks.finite('entropy and node floor', (msg.entropy, msg.node_floor))
-    if max(msg.node_indices) >= num_nodes:
-        raise Rejected('out_of_range', f'node index {max(msg.node_indices)} of {num_nodes} '
-                                       'nodes')
 
 
 def main(args=None):

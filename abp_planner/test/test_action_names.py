@@ -21,7 +21,7 @@ def test_executed_action_constants_are_the_action_vocabulary():
     assert set(NOMINAL_DURATION_S) == set(ACTIONS)
 
 
-def test_planner_node_maps_every_action_to_a_skill():
-    planner_node = pytest.importorskip('abp_planner.planner_node')
-    assert list(planner_node.SKILLS) == list(ACTIONS)
-    assert {skill for skill, _ in planner_node.SKILLS.values()} == set(planner_node.SKILL_TYPES)
+def test_planner_skill_clients_map_every_action_to_a_skill():
+    skill_clients = pytest.importorskip('abp_planner.skill_clients')
+    assert list(skill_clients.SKILLS) == list(ACTIONS)
+    assert {skill for skill, _ in skill_clients.SKILLS.values()} == set(skill_clients.SKILL_TYPES)

@@ -393,13 +393,49 @@ class LearnedTables:
         return states, p, np.where(p > 0, c, 0.0)
 
 
+def robot_fault_rates(params: TransitionParams | None = None) -> dict:
+    """The robot's own failure rates of the manual actions (`p_fail_*` of the model set's
+    TransitionParams, the hand-written table's failure model), per action name."""
+    p = params or TransitionParams()
+    return {'PUSH': p.p_fail_push, 'LIFT': p.p_fail_lift, 'FLIP': p.p_fail_flip}
+
+
+def with_contact_faults(probs: np.ndarray, fault_rates: dict) -> np.ndarray:
+    """(8, 7, 48, 48) rows with each manual action's `fault_rates[action]` of 'no change'
+    mixed in: p' = (1 - f) p + f * [next == state].
+
+    Why: the MuJoCo survey runs the skills without robot faults, so it measures how the
+    *object* responds when the hands make the planned contact. On the robot a push can
+    miss and a grasp slip while the skill reports success (`--faults` in the sim): then
+    nothing moves whatever the object. Without this term a learned row gives 'no change'
+    the prior's sliver only (about 1 % after 20 trials), and one slipped FLIP of a uniform
+    cube reads as strong evidence for a twin that rolls less."""
+    unknown = set(fault_rates) - set(ACTIONS)
+    if unknown:
+        raise LearningError(f'fault rates for unknown actions: {sorted(unknown)}')
+    out = np.array(probs, dtype=np.float64, copy=True)
+    eye = np.eye(_NS)
+    for action, rate in fault_rates.items():
+        if not 0.0 <= rate < 1.0:
+            raise LearningError(f'fault rate of {action} must be in [0, 1), got {rate}')
+        if action in ORBIT_STEPS:
+            raise LearningError(f'{action}: ORBIT does not touch the cube; no contact fault')
+        a = ACTIONS.index(action)
+        out[a] = (1.0 - rate) * out[a] + rate * eye[None, :, :]
+    return out
+
+
 def learn(experience: Experience, alpha: float = DEFAULT_ALPHA, prior: str = 'table',
           epsilon: float = DEFAULT_EPSILON, neighbourhood_kind: str = DEFAULT_NEIGHBOURHOOD,
-          pool: bool = True, params: TransitionParams | None = None) -> LearnedTables:
+          pool: bool = True, params: TransitionParams | None = None,
+          fault_rates: dict | None = None) -> LearnedTables:
     """Dirichlet posterior-mean tables from `experience` (module doc).
 
     alpha = 0 gives the empirical frequencies where a cell has data (and the prior mean
-    where it has none): the 'survey table' a world can be drawn from."""
+    where it has none): the 'survey table' a world can be drawn from. `fault_rates`
+    (action name -> rate, e.g. `robot_fault_rates()`): the robot's contact faults mixed
+    into the learned rows (`with_contact_faults`); None or {} for experience that already
+    holds them (the robot's own bags)."""
     if not (np.isfinite(alpha) and alpha >= 0):
         raise LearningError(f'alpha must be >= 0, got {alpha}')
     t0 = time.perf_counter()
@@ -409,8 +445,11 @@ def learn(experience: Experience, alpha: float = DEFAULT_ALPHA, prior: str = 'ta
     denom = n + alpha
     probs = np.where(denom > 0, (counts + alpha * mu) / np.where(denom > 0, denom, 1.0), mu)
     probs /= probs.sum(axis=3, keepdims=True)
+    if fault_rates:
+        probs = with_contact_faults(probs, fault_rates)
     info = dict(method='dirichlet posterior mean', alpha=float(alpha), prior=prior,
                 epsilon=float(epsilon), neighbourhood=neighbourhood_kind, pooled=bool(pool),
+                contact_fault_rates={k: float(v) for k, v in (fault_rates or {}).items()},
                 transitions=len(experience), weight=float(experience.weight.sum()),
                 source=experience.source, learn_s=round(time.perf_counter() - t0, 4))
     return LearnedTables(probs, counts, info)

@@ -6,7 +6,8 @@ Examples:
   learn_atg --survey bench_out/survey/survey.json --out learned_robot.npz
   learn_atg --survey bench_out/survey/survey.json --set full --out learned_full.npz \\
       --report learned_vs_hand.md
-  learn_atg --survey survey.json --alpha 0 --out survey_table.npz     # empirical (a world)
+  learn_atg --survey survey.json --alpha 0 --contact-fault-rate 0 \
+      --out survey_table.npz                                     # empirical (a world)
   learn_atg --survey survey.json --trials-per-class 5 --out learned_n5.npz
   learn_atg --bags labels.yaml --seed 1 --out learned_bags.npz    # recorded episodes
 
@@ -77,6 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--bags: at most this many observations' worth of evidence per "
                    'state between two actions (default '
                    f'{atg_from_bags.DEFAULT_VIEWS_PER_SEGMENT:g})')
+    p.add_argument('--contact-fault-rate', type=float, default=None, metavar='F',
+                   help="the robot's rate of PUSH/LIFT/FLIP that report success but never "
+                   "moved the cube (missed push, slipped grasp), mixed into the learned rows "
+                   "as 'no change'. Default: with --survey (run without robot faults) the "
+                   "model set's p_fail_* (0.1, the hand-written table's failure model); with "
+                   "--bags 0 (the robot's own experience already holds its faults)")
     p.add_argument('--report', metavar='MD', help='write learned vs hand-written (Markdown)')
     p.add_argument('--json', action='store_true', help='print a JSON summary')
     return p
@@ -92,6 +99,13 @@ def _population(args):
     if args.which == 'random':
         return population.random_visual_subset(args.size, n_tags=args.tags, seed=args.seed)
     return population.robot_set(seed=args.seed, n_tags=args.tags)
+
+
+def _fault_rates(args) -> dict:
+    if args.contact_fault_rate is None:
+        return {} if args.bags else atg_learning.robot_fault_rates()
+    return {action: args.contact_fault_rate for action in ('PUSH', 'LIFT', 'FLIP')
+            if args.contact_fault_rate > 0}
 
 
 def main(argv=None) -> int:
@@ -120,7 +134,8 @@ def main(argv=None) -> int:
         learned = atg_learning.learn(experience, alpha=args.alpha, prior=args.prior,
                                      epsilon=args.epsilon,
                                      neighbourhood_kind=args.neighbourhood,
-                                     pool=not args.no_pool)
+                                     pool=not args.no_pool,
+                                     fault_rates=_fault_rates(args))
         t_learn = time.perf_counter() - t0
         models = atg_learning.with_tables(base or _population(args), learned)
     except (ValueError, model_file.ModelFileError) as exc:

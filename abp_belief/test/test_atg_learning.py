@@ -201,6 +201,30 @@ def test_version_1_files_are_still_read(tmp_path, robot):
     assert model_file.fingerprint(loaded) == header['sha256']
 
 
+def test_contact_faults_mix_no_change_into_manual_rows_only():
+    # A +x-heavy cube at state 16 that LIFT rolls as the table says, 20 times of 20.
+    m, s = 1, 16
+    rolled = int(np.argmax(L.hand_table()[LIFT, m, s]))
+    assert rolled != s
+    experience = _experience([[LIFT, m, s, rolled]] * 20)
+    plain = L.learn(experience, alpha=2.0)
+    faulty = L.learn(experience, alpha=2.0, fault_rates=L.robot_fault_rates())
+    assert plain.probs[LIFT, m, s, s] < 0.02                     # the prior's sliver only
+    assert faulty.probs[LIFT, m, s, s] == pytest.approx(0.1 + 0.9 * plain.probs[LIFT, m, s, s])
+    assert faulty.probs[LIFT, m, s, rolled] == pytest.approx(0.9 * plain.probs[LIFT, m, s, rolled])
+    orbit = [ACTIONS.index(a) for a in ACTIONS if a.startswith('ORBIT')]
+    assert np.array_equal(faulty.probs[orbit], plain.probs[orbit])
+    assert np.allclose(faulty.probs.sum(axis=3), 1.0)
+    assert np.array_equal(faulty.counts, plain.counts)           # experience is unchanged
+    assert faulty.info['contact_fault_rates'] == {'PUSH': 0.1, 'LIFT': 0.1, 'FLIP': 0.1}
+    with pytest.raises(ValueError, match='ORBIT'):
+        L.with_contact_faults(plain.probs, {'ORBIT_P45': 0.1})
+    with pytest.raises(ValueError, match=r'\[0, 1\)'):
+        L.with_contact_faults(plain.probs, {'LIFT': 1.0})
+    with pytest.raises(ValueError, match='unknown'):
+        L.with_contact_faults(plain.probs, {'JUMP': 0.1})
+
+
 def test_learn_atg_cli(tmp_path, capsys):
     survey = tmp_path / 'survey.json'
     survey.write_text(json.dumps(_survey()))
@@ -211,6 +235,13 @@ def test_learn_atg_cli(tmp_path, capsys):
     assert summary['transitions'] == 42 and summary['models'] == 30
     loaded = population.model_set_from_config(model_file=str(out))   # as every node loads it
     assert loaded.learning['source']['kind'] == 'outcome_survey'
+    assert loaded.learning['contact_fault_rates'] == {'PUSH': 0.1, 'LIFT': 0.1, 'FLIP': 0.1}
+    empirical = tmp_path / 'empirical.npz'
+    assert learn_atg(['--survey', str(survey), '--alpha', '0', '--contact-fault-rate', '0',
+                      '--out', str(empirical)]) == 0
+    assert population.model_set_from_config(
+        model_file=str(empirical)).learning['contact_fault_rates'] == {}
+    capsys.readouterr()
     text = report.read_text()
     assert '| LIFT | uniform, even yaw | 24 | 3 |' in text and 'TV' in text
     assert learn_atg(['--survey', str(tmp_path / 'none.json')]) == 2

@@ -32,6 +32,7 @@ from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.frames import (  # noqa: E402
     base_to_world,
     rotation_from_quaternion,
+    wrap_rad,
     yaw_of_quaternion,
 )
 from abp_description.kinematics import RobotKinematics  # noqa: E402
@@ -151,10 +152,6 @@ def publish_when_matched(tester, publisher, msg, timeout=10):
 
 
 # -- base, joints and clock ------------------------------------------------------------------
-
-def wrap_angle(a):
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
 
 def moving_runs(odom):
     """The runs of consecutive moving odometry messages received, as lists."""
@@ -299,7 +296,7 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     fx, fy = final.pose.pose.position.x, final.pose.pose.position.y
     radius = v / w
     drive_heading = np.arctan2(fx / radius, 1 - fy / radius)   # on the arc: wrapped
-    pulse_turn = wrap_angle(yaw_of(final.pose.pose.orientation) - drive_heading)
+    pulse_turn = wrap_rad(yaw_of(final.pose.pose.orientation) - drive_heading)
     assert pulse_turn == pytest.approx(w_p * cmd_vel_timeout, abs=1e-6), \
         'a command drives the base for cmd_vel_timeout'
 

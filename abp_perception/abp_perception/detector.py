@@ -459,7 +459,7 @@ class TagDetector:
     @staticmethod
     def default_parameters(refine_corners: bool = True) -> "cv2.aruco.DetectorParameters":
         """ArUco parameters: defaults except for finer bit sampling of small, blurred tags,
-        one more threshold window and less candidate grouping (below).
+        one more threshold window (13 px kept) and less candidate grouping (below).
 
         Corner refinement is our own edge fit (refine_corners) or SUBPIX without it.
         """
@@ -468,10 +468,14 @@ class TagDetector:
                                     else cv2.aruco.CORNER_REFINE_SUBPIX)
         p.perspectiveRemovePixelPerCell = 8
         p.perspectiveRemoveIgnoredMarginPerCell = 0.3
-        # Threshold windows 3, 23, 43, 63 px (default 3, 13, 23): the large ones find
-        # markers on dim, shaded, oblique faces; as many passes as the default + 1.
-        p.adaptiveThreshWinSizeMax = 63
-        p.adaptiveThreshWinSizeStep = 20
+        # Threshold windows 3, 13, 23, 33 px (default 3, 13, 23; one pass more). 3 px finds
+        # small, far tags on texture; 13 px large near tags whose border the wider
+        # windows merge with dark texture or shade (without it 42 tags OpenCV finds on the
+        # realistic suite were lost); 33 px dim, shaded, oblique faces (docs/BENCHMARKS.md,
+        # issue 16).
+        p.adaptiveThreshWinSizeMin = 3
+        p.adaptiveThreshWinSizeMax = 33
+        p.adaptiveThreshWinSizeStep = 10
         # Keep a marker's own contour apart from its white quiet zone's outer contour:
         # grouped (default 0.125), the outer one may win and then be dropped at the
         # image border, losing the marker.

@@ -14,6 +14,8 @@ Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the im
 
 Topic names are relative (abp_common.names): under a namespace the node reads and
 writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
+Between full-frame passes (every `full_frame_every` frames) ArUco searches only around
+the tags of the last frame (`detector.RegionSearch`).
 The science lives in `abp_perception.detector`; the camera pose in the base frame comes
 from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, no tf2).
 Inputs are rejected, never crash the node, counted in /diagnostics by topic and kind
@@ -50,6 +52,7 @@ from .detector import (
     ImageEncodingError,
     ImageLayoutError,
     ImageSizeError,
+    RegionSearch,
     TagDetector,
     check_image_size,
     compressed_msg_to_gray,
@@ -75,6 +78,7 @@ class ArtagDetectorNode(Node):
                              f'{self.kinematics.urdf_path}')
         self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
+        self.search = RegionSearch(self._values['full_frame_every'])
         self._camera_key = None
         self._joints = None
         self.health = NodeHealth(self)
@@ -105,8 +109,13 @@ class ArtagDetectorNode(Node):
                            camera_frame=self.camera_frame, image_size=image_size, **config)
 
     def _on_set_parameters(self, params):
+        every = [int(p.value) for p in params if p.name == 'full_frame_every']
+        if every and every[-1] < 1:
+            return SetParametersResult(successful=False, reason='full_frame_every must be >= 1')
         changes = {p.name: p.value for p in params if p.name in DETECTOR_PARAMETERS}
         if not changes:
+            if every:
+                self.search.full_frame_every = every[-1]
             return SetParametersResult(successful=True)
         config = dict(self._config, **changes)
         try:
@@ -122,6 +131,8 @@ class ArtagDetectorNode(Node):
         self._config = config
         if detector is not None:
             self.detector = detector
+        if every:
+            self.search.full_frame_every = every[-1]
         return SetParametersResult(successful=True)
 
     # -- callbacks ----------------------------------------------------------------
@@ -205,7 +216,7 @@ class ArtagDetectorNode(Node):
     def _detect_and_publish(self, gray, header):
         try:
             with self.health.timed():
-                result = self.detector.detect(gray)
+                result = self.search.detect(self.detector, gray)
         except ImageSizeError as error:
             raise Rejected('size', str(error)) from None
         except ValueError as error:

@@ -244,19 +244,17 @@ def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_error
     border = np.ones((cells, cells), dtype=bool)
     b = int(border_bits)
     border[b:cells - b, b:cells - b] = False
-    out = []
-    for k in range(q.shape[0]):
-        cv = cell_vals[k]
-        black, white = np.median(cv[border]), np.median(ring_vals[k])
-        if white - black < min_contrast:
-            out.append(None)
-            continue
-        thr = 0.5 * (black + white)
-        if (cv[border] > thr).sum() > max_border_errors \
-                or (ring_vals[k] < thr).sum() > ring_vals.shape[1] // 4:
-            out.append(None)
-            continue
-        bits = (cv[b:cells - b, b:cells - b] > thr).astype(np.uint8)
-        found, idx, rotation = dictionary.identify(bits, 0.0)
-        out.append((int(idx), int(rotation)) if found else None)
+    # Every quad's levels and checks at once; only the survivors are identified.
+    black = np.median(cell_vals[:, border], axis=1)
+    white = np.median(ring_vals, axis=1)
+    thr = 0.5 * (black + white)
+    ok = (white - black >= min_contrast) \
+        & ((cell_vals[:, border] > thr[:, None]).sum(axis=1) <= max_border_errors) \
+        & ((ring_vals < thr[:, None]).sum(axis=1) <= ring_vals.shape[1] // 4)
+    bits = (cell_vals[:, b:cells - b, b:cells - b] > thr[:, None, None]).astype(np.uint8)
+    out = [None] * q.shape[0]
+    for k in np.flatnonzero(ok):
+        found, idx, rotation = dictionary.identify(bits[k], 0.0)
+        if found:
+            out[k] = (int(idx), int(rotation))
     return out

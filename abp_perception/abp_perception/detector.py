@@ -2,9 +2,11 @@
 
 Pipeline per grey image (``TagDetector.detect``):
 
-1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off and bit
-   sampling tuned for small, blurred tags (8 px per cell, 30 % cell margin ignored;
-   see ``TagDetector.default_parameters``).
+1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off, threshold
+   windows 3-33 px and bit sampling tuned for small, blurred tags (8 px per cell, 30 %
+   cell margin ignored; see ``TagDetector.default_parameters``); on the whole image, or
+   only on a region of it (``roi``: where the cube was, ``RegionSearch``, which searches
+   the whole image every few frames).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
    ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
@@ -89,8 +91,8 @@ __all__ = [
     'image_msg_to_gray', 'compressed_image_to_gray', 'compressed_msg_to_gray',
     'parse_compressed_format', 'check_image_size', 'SUPPORTED_ENCODINGS',
     'DICTIONARY_NAMES', 'dictionary_id', 'dictionary_name', 'marker_object_points', 'Detection',
-    'DroppedDetection', 'DetectionResult', 'TagDetector', 'transform_covariance',
-    'pose_covariance',
+    'DroppedDetection', 'DetectionResult', 'TagDetector', 'RegionSearch', 'search_region',
+    'clip_regions', 'transform_covariance', 'pose_covariance',
 ]
 
 # encoding -> (channels, cv2 conversion to grey or None)
@@ -361,11 +363,12 @@ class DetectionResult:
     dropped: list
     second_pass: int = 0           # detections recovered from rejected candidates
     cubes: list = field(default_factory=list)   # rigid_cube.CubePose, >= 2 tags each
+    roi: list = None               # [(x0, y0, x1, y1) px] searched; None: the whole image
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
         return DetectionResult([d.transformed(transform, frame) for d in self.detections],
                                list(self.dropped), self.second_pass,
-                               [c.transformed(transform, frame) for c in self.cubes])
+                               [c.transformed(transform, frame) for c in self.cubes], self.roi)
 
 
 def _inside_any(points, quads) -> np.ndarray:
@@ -411,6 +414,102 @@ def pose_covariance(rotation, translation, side_px, rms_px, focal_px, corner_sig
     cov[:3, :3] = pos
     cov[3:, 3:] = rotation @ rot_tag @ rotation.T
     return cov
+
+
+def clip_regions(roi, shape):
+    """`roi` (one (x0, y0, x1, y1) px box or a sequence of them) as a list of int boxes
+    clipped to an image of `shape` (rows, cols), overlapping boxes merged into their
+    bounding box (so no pixel is searched twice); None for None or when a box covers the
+    whole image. Raises ValueError for boxes that are not four finite numbers or when no
+    box has a pixel in the image."""
+    if roi is None:
+        return None
+    h, w = int(shape[0]), int(shape[1])
+    try:
+        arr = np.asarray(roi, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or not (arr.shape == (4,) or (arr.ndim == 2 and arr.shape[1] == 4)):
+        raise ValueError(f'roi must be (x0, y0, x1, y1) px or a list of them, got {roi!r}')
+    if not np.isfinite(arr).all():
+        raise ValueError(f'roi must be finite, got {roi!r}')
+    lo = np.clip(np.floor(arr.reshape(-1, 4)[:, :2]), 0, (w, h)).astype(int)
+    hi = np.clip(np.ceil(arr.reshape(-1, 4)[:, 2:]), 0, (w, h)).astype(int)
+    boxes = [(int(a[0]), int(a[1]), int(b[0]), int(b[1])) for a, b in zip(lo, hi)
+             if b[0] > a[0] and b[1] > a[1]]
+    if not boxes:
+        raise ValueError(f'roi {roi!r} has no pixel in the {w}x{h} image')
+    merged = True
+    while merged:                        # union of overlapping boxes until none overlap
+        merged = False
+        for i in range(len(boxes)):
+            for j in range(i + 1, len(boxes)):
+                a, b = boxes[i], boxes[j]
+                if a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]:
+                    boxes[i] = (min(a[0], b[0]), min(a[1], b[1]), max(a[2], b[2]),
+                                max(a[3], b[3]))
+                    del boxes[j]
+                    merged = True
+                    break
+            if merged:
+                break
+    if any(box == (0, 0, w, h) for box in boxes):
+        return None
+    return sorted(boxes)
+
+
+def search_region(detections, shape, margin=1.5, min_margin_px=24.0):
+    """The regions (list of (x0, y0, x1, y1) px) to search next frame for the tags of
+    `detections`: each tag's corner bounding box grown by `margin` times its larger side
+    plus `min_margin_px` on each side (room for its cube's other faces, ~1.25 tag sides
+    away, and for motion), clipped to an image of `shape`, overlapping ones merged
+    (``clip_regions``); None when there is no detection (search it all)."""
+    boxes = []
+    for det in detections:
+        pts = np.asarray(det.corners, dtype=np.float64).reshape(-1, 2)
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+        grow = float(margin) * float((hi - lo).max()) + float(min_margin_px)
+        boxes.append((lo[0] - grow, lo[1] - grow, hi[0] + grow, hi[1] + grow))
+    return clip_regions(boxes, shape) if boxes else None
+
+
+class RegionSearch:
+    """Search where the tags were: each frame ArUco looks only at ``search_region`` of
+    the last frame's detections, and at the whole image every `full_frame_every`-th
+    frame (the first one included), after a frame with no detection, and after the
+    detector changed (a new camera). `full_frame_every` 1: always the whole image.
+
+    >>> search = RegionSearch(full_frame_every=5)
+    >>> result = search.detect(detector, gray)     # DetectionResult; result.roi: searched
+    """
+
+    def __init__(self, full_frame_every: int = 5, margin: float = 1.5,
+                 min_margin_px: float = 24.0):
+        if int(full_frame_every) < 1:
+            raise ValueError(f'full_frame_every must be >= 1, got {full_frame_every}')
+        if not (np.isfinite(margin) and margin >= 0 and np.isfinite(min_margin_px)
+                and min_margin_px >= 0):
+            raise ValueError(f'margin and min_margin_px must be >= 0, got {margin}, '
+                             f'{min_margin_px}')
+        self.full_frame_every = int(full_frame_every)
+        self.margin, self.min_margin_px = float(margin), float(min_margin_px)
+        self.reset()
+
+    def reset(self):
+        """Search the whole image next frame."""
+        self._region, self._since_full, self._detector = None, 0, None
+
+    def detect(self, detector, gray) -> DetectionResult:
+        """``detector.detect`` of `gray` in the region (or the whole image) due."""
+        if detector is not self._detector:
+            self.reset()
+            self._detector = detector
+        due = self._region is None or self._since_full >= self.full_frame_every - 1
+        result = detector.detect(gray, roi=None if due else self._region)
+        self._since_full = 0 if result.roi is None else self._since_full + 1
+        self._region = search_region(result.detections, np.shape(gray), self.margin,
+                                     self.min_margin_px)
+        return result
 
 
 class TagDetector:
@@ -459,7 +558,7 @@ class TagDetector:
     @staticmethod
     def default_parameters(refine_corners: bool = True) -> "cv2.aruco.DetectorParameters":
         """ArUco parameters: defaults except for finer bit sampling of small, blurred tags,
-        one more threshold window and less candidate grouping (below).
+        one more threshold window (13 px kept) and less candidate grouping (below).
 
         Corner refinement is our own edge fit (refine_corners) or SUBPIX without it.
         """
@@ -468,10 +567,14 @@ class TagDetector:
                                     else cv2.aruco.CORNER_REFINE_SUBPIX)
         p.perspectiveRemovePixelPerCell = 8
         p.perspectiveRemoveIgnoredMarginPerCell = 0.3
-        # Threshold windows 3, 23, 43, 63 px (default 3, 13, 23): the large ones find
-        # markers on dim, shaded, oblique faces; as many passes as the default + 1.
-        p.adaptiveThreshWinSizeMax = 63
-        p.adaptiveThreshWinSizeStep = 20
+        # Threshold windows 3, 13, 23, 33 px (default 3, 13, 23; one pass more). 3 px finds
+        # small, far tags on texture; 13 px large near tags whose border the wider
+        # windows merge with dark texture or shade (without it 42 tags OpenCV finds on the
+        # realistic suite were lost); 33 px dim, shaded, oblique faces (docs/BENCHMARKS.md,
+        # issue 16).
+        p.adaptiveThreshWinSizeMin = 3
+        p.adaptiveThreshWinSizeMax = 33
+        p.adaptiveThreshWinSizeStep = 10
         # Keep a marker's own contour apart from its white quiet zone's outer contour:
         # grouped (default 0.125), the outer one may win and then be dropped at the
         # image border, losing the marker.
@@ -506,15 +609,32 @@ class TagDetector:
         self.focal_px = 0.5 * (k[0, 0] + k[1, 1])
 
     # -- detection ------------------------------------------------------------------------
-    def detect(self, gray) -> DetectionResult:
+    def detect(self, gray, roi=None) -> DetectionResult:
         """Detect tags in a grey uint8 image; poses in the camera optical frame.
 
+        `roi` (x0, y0, x1, y1) px or a list of such boxes, e.g. ``search_region`` of the
+        last detections: ArUco searches only those parts of the image (``clip_regions``;
+        clutter elsewhere costs nothing); corners, decoding and poses use the whole image,
+        so results are in full-image pixels. None: the whole image. ``RegionSearch``
+        tracks the region from frame to frame with a full-frame pass at a lower rate.
+
         Raises ValueError (ImageSizeError for a size other than `image_size`) for input
-        that is not a non-empty 2-D uint8 image of the camera's size."""
+        that is not a non-empty 2-D uint8 image of the camera's size, or an roi that is
+        not four numbers or has no pixel in the image."""
         gray = self.check_image(gray)
-        corners, ids, rejected = self.aruco.detectMarkers(gray)
+        roi = clip_regions(roi, gray.shape)
+        if roi is None:
+            corners, ids, rejected = self.aruco.detectMarkers(gray)
+            tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
+        else:
+            corners, tag_ids, rejected = [], [], []
+            for x0, y0, x1, y1 in roi:
+                c, i, r = self.aruco.detectMarkers(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+                offset = np.array([x0, y0], dtype=np.float32)
+                corners += [q + offset for q in c]
+                tag_ids += [] if i is None else [int(v) for v in i.ravel()]
+                rejected += [] if r is None else [q + offset for q in r]
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
-        tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
         cand = np.zeros((0, 4, 2))
         if self.second_pass and rejected is not None and len(rejected):
             cand = self._candidates(rejected, quads)
@@ -538,7 +658,7 @@ class TagDetector:
             else:
                 detections.append(det)
         cubes = self._rigid_cubes(detections) if self.cube_size else []
-        return DetectionResult(detections, dropped, recovered, cubes)
+        return DetectionResult(detections, dropped, recovered, cubes, roi)
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`

@@ -41,6 +41,9 @@ DETECTOR_SPECS = (
     ParamSpec('refine_corners', BOOL, True, 'Edge-fit sub-pixel corners (else OpenCV SUBPIX).'),
     ParamSpec('second_pass', BOOL, True, 'Decode candidates that ArUco rejected, after '
               'refining.'),
+    ParamSpec('full_frame_every', INT, 5, 'Search the whole image every this many frames '
+              '(and after a frame without tags); in between only around the last tags '
+              '(detector.RegionSearch). 1 = always the whole image.', (1, 10000)),
 )
 DETECTOR_PARAMETERS = ('marker_size', 'cube_size', 'corner_sigma_px', 'max_reprojection_error',
                        'min_side_px', 'refine_corners', 'second_pass')

@@ -342,3 +342,91 @@ def test_ippe_square_object_points_follow_the_documented_order():
     pts = marker_object_points(0.08)
     np.testing.assert_allclose(pts, [[-0.04, 0.04, 0], [0.04, 0.04, 0], [0.04, -0.04, 0],
                                      [-0.04, -0.04, 0]])
+
+
+# -- region search (issue 16, item 2) ---------------------------------------------------------
+
+def _two_tags_apart():
+    """Tag 3 left and tag 8 right in a 640 x 480 grey image with clutter between them."""
+    image = np.full((480, 640), 150, np.uint8)
+    left = paste_tag(image, 3, (120, 240), 60)
+    right = paste_tag(image, 8, (520, 240), 60)
+    return image, left, right
+
+
+def test_region_is_searched_only_and_results_are_in_image_pixels(detector):
+    image, left, right = _two_tags_apart()
+    full = detector.detect(image)
+    assert sorted(d.tag_id for d in full.detections) == [3, 8] and full.roi is None
+    result = detector.detect(image, roi=(60, 160, 200, 330))
+    assert [d.tag_id for d in result.detections] == [3]
+    assert result.roi == [(60, 160, 200, 330)]
+    np.testing.assert_allclose(result.detections[0].corners, left, atol=0.3)
+    in_full = next(d for d in full.detections if d.tag_id == 3)
+    np.testing.assert_allclose(result.detections[0].pose, in_full.pose, atol=1e-9)
+    both = detector.detect(image, roi=[(60, 160, 200, 330), (440, 160, 600, 330)])
+    assert sorted(d.tag_id for d in both.detections) == [3, 8]
+
+
+def test_regions_are_clipped_merged_and_refused_clearly():
+    from abp_perception.detector import clip_regions
+    assert clip_regions(None, (480, 640)) is None
+    assert clip_regions((-10, -5, 700, 500), (480, 640)) is None          # the whole image
+    assert clip_regions((10.5, 20.2, 100.1, 90.9), (480, 640)) == [(10, 20, 101, 91)]
+    assert clip_regions([(0, 0, 50, 50), (40, 40, 90, 90), (200, 0, 210, 10)],
+                        (480, 640)) == [(0, 0, 90, 90), (200, 0, 210, 10)]
+    for bad, message in [((1, 2, 3), 'x0, y0, x1, y1'), ('abc', 'x0, y0, x1, y1'),
+                         ((0, 0, np.nan, 5), 'finite'), ((700, 0, 800, 10), 'no pixel')]:
+        with pytest.raises(ValueError, match=message):
+            clip_regions(bad, (480, 640))
+
+
+def test_search_region_surrounds_each_tag_and_none_without_tags(detector):
+    from abp_perception.detector import search_region
+    image, left, right = _two_tags_apart()
+    regions = search_region(detector.detect(image).detections, image.shape)
+    assert len(regions) == 2                       # two tags far apart: two regions
+    for quad, (x0, y0, x1, y1) in zip((left, right), regions):
+        assert x0 < quad[:, 0].min() - 60 and x1 > quad[:, 0].max() + 60
+        assert y0 < quad[:, 1].min() - 60 and y1 > quad[:, 1].max() + 60
+    assert search_region([], image.shape) is None
+
+
+def test_region_search_tracks_a_tag_and_the_full_frame_pass_finds_a_new_one(detector):
+    from abp_perception.detector import RegionSearch
+    image, _, _ = _two_tags_apart()
+    only_left = image.copy()
+    only_left[:, 400:] = 150                                     # tag 8 not there yet
+    search = RegionSearch(full_frame_every=4)
+    first = search.detect(detector, only_left)
+    assert first.roi is None and [d.tag_id for d in first.detections] == [3]
+    # Tag 8 appears outside the region around tag 3: the region search does not see it
+    # until the full-frame pass (every 4th frame), then both are tracked.
+    seen = []
+    for _ in range(3):
+        result = search.detect(detector, image)
+        assert result.roi is not None and all(x1 < 400 for _, _, x1, _ in result.roi)
+        seen.append(sorted(d.tag_id for d in result.detections))
+    assert seen == [[3]] * 3
+    full = search.detect(detector, image)
+    assert full.roi is None and sorted(d.tag_id for d in full.detections) == [3, 8]
+    tracked = search.detect(detector, image)
+    assert len(tracked.roi) == 2 and sorted(d.tag_id for d in tracked.detections) == [3, 8]
+
+
+def test_region_search_looks_everywhere_after_losing_the_tags_or_a_new_detector(detector):
+    from abp_perception.detector import RegionSearch
+    image, _, _ = _two_tags_apart()
+    search = RegionSearch(full_frame_every=100)
+    assert search.detect(detector, image).roi is None
+    assert search.detect(detector, image).roi is not None
+    blank = np.full_like(image, 150)
+    assert search.detect(detector, blank).detections == []       # lost: searched its region
+    assert search.detect(detector, image).roi is None            # so the whole image next
+    assert search.detect(detector, image).roi is not None
+    other = TagDetector(detector.camera_matrix)                  # e.g. a new camera_info
+    assert search.detect(other, image).roi is None
+    always = RegionSearch(full_frame_every=1)
+    assert all(always.detect(detector, image).roi is None for _ in range(3))
+    with pytest.raises(ValueError, match='full_frame_every'):
+        RegionSearch(full_frame_every=0)

@@ -198,6 +198,7 @@ def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_process
     ('artag_detector', 'dictionary:=DICT_BOGUS', 'DICT_APRILTAG_36h11'),
     ('artag_detector', 'image_transport:=theora', 'image_transport'),
     ('artag_detector', 'marker_size:=0.0', 'marker_size'),
+    ('artag_detector', 'full_frame_every:=0', 'full_frame_every'),
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),
 ])

@@ -58,6 +58,18 @@ def unmatched(reports):
     return missing
 
 
+def next_transition(state, instance, settled_instance):
+    """The transition a manager asks of a node next: 'configure', 'activate' or None.
+
+    A manager brings each node *instance* (one process) up once: when it has reached
+    active, or refused a transition, it is settled and left alone (a node deactivated or
+    cleaned up on purpose stays so, a node that failed to configure is not asked again
+    in a loop). A respawned node is a new instance, so it is brought up again."""
+    if instance is None or instance == settled_instance:
+        return None
+    return {'unconfigured': 'configure', 'inactive': 'activate'}.get(state)
+
+
 def not_active(reports, node_names):
     """['<node> is <state>', ...] for the managed nodes that are not active (or silent)."""
     out = []
@@ -70,4 +82,4 @@ def not_active(reports, node_names):
     return out
 
 
-__all__ = ['IGNORED_TOPICS', 'endpoint_report', 'not_active', 'unmatched']
+__all__ = ['IGNORED_TOPICS', 'endpoint_report', 'next_transition', 'not_active', 'unmatched']

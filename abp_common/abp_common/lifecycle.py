@@ -135,14 +135,14 @@ class ManagedNode(LifecycleNode):
     def on_deactivate(self, state):
         super().on_deactivate(state)
         self._run_hook(self.deactivate)
-        self._undo(self._made['activate'])
+        self._run_hook(lambda: self._undo(self._made['activate']), 'destroying')
         self._made['activate'] = None
         self.get_logger().info('inactive')
         return TransitionCallbackReturn.SUCCESS
 
     def on_cleanup(self, state):
         self._run_hook(self.cleanup)
-        self._undo(self._made['configure'])
+        self._run_hook(lambda: self._undo(self._made['configure']), 'destroying')
         self._made['configure'] = None
         self.get_logger().info('unconfigured (cleaned up)')
         return TransitionCallbackReturn.SUCCESS
@@ -159,11 +159,12 @@ class ManagedNode(LifecycleNode):
         self.on_shutdown(state)
         return TransitionCallbackReturn.SUCCESS
 
-    def _run_hook(self, hook):
+    def _run_hook(self, hook, what=None):
         try:
             hook()
-        except Exception as error:  # noqa: BLE001 -- the entities must still go
-            self.get_logger().error(f'{hook.__name__} hook failed: {error}')
+        except Exception as error:  # noqa: BLE001 -- the transition must still complete
+            self.get_logger().error(f'{what or hook.__name__} failed: '
+                                    f'{type(error).__name__}: {error}')
 
     # -- bookkeeping of what a transition made ---------------------------------------
     def _snapshot(self):
@@ -186,13 +187,7 @@ class ManagedNode(LifecycleNode):
     def _undo(self, made):
         if not made:
             return
-        for waitable in made['waitables']:
-            if waitable in self.waitables:
-                destroy = getattr(waitable, 'destroy', None)
-                if destroy is not None:
-                    destroy()       # an action server or client removes itself
-                if waitable in self.waitables:
-                    self.remove_waitable(waitable)
+        # Endpoints first: destroying one also removes its QoS event handlers (waitables).
         destroyers = {'_publishers': self.destroy_publisher,
                       '_subscriptions': self.destroy_subscription,
                       '_services': self.destroy_service, '_clients': self.destroy_client,
@@ -200,6 +195,13 @@ class ManagedNode(LifecycleNode):
         for name, destroy in destroyers.items():
             for entity in made[name]:
                 destroy(entity)
+        for waitable in made['waitables']:
+            if any(w is waitable for w in self.waitables):
+                destroy = getattr(waitable, 'destroy', None)
+                if destroy is not None:
+                    destroy()       # an action server or client removes itself
+                if any(w is waitable for w in self.waitables):
+                    self.remove_waitable(waitable)
         for name in _CALLBACK_LISTS:
             callbacks = getattr(self, name)
             for callback in made[name]:

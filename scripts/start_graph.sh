@@ -240,7 +240,7 @@ until grep -q "graph ready" "$manager_log" 2>/dev/null; do
   fi
   sleep 0.2
 done
-echo "[start_graph] graph ready ($((SECONDS - started_at)) s): ${managed[*]} active"
+echo "[start_graph] graph ready: ${managed[*]} active"
 
 if [ -n "$record" ]; then
   # Subscriptions match their publishers some time after a node starts: wait until

@@ -105,7 +105,8 @@ class ManagedNode(LifecycleNode):
         try:
             self.configure()
         except Exception as error:  # noqa: BLE001 -- reported, then the node is undone
-            self._undo(self._diff(before))
+            made = self._diff(before)
+            self._run_hook(lambda: self._undo(made), 'destroying')
             self.configuration_error = error
             if isinstance(error, self.config_errors):
                 self.get_logger().error(f'configure failed: configuration error: {error}')
@@ -121,7 +122,8 @@ class ManagedNode(LifecycleNode):
         try:
             self.activate()
         except Exception as error:  # noqa: BLE001
-            self._undo(self._diff(before))
+            made = self._diff(before)
+            self._run_hook(lambda: self._undo(made), 'destroying')
             self.get_logger().error(f'activate failed: {type(error).__name__}: {error}\n'
                                     f'{traceback.format_exc()}')
             return TransitionCallbackReturn.FAILURE

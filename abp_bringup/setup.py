@@ -29,6 +29,7 @@ setup(
             'bag_recorder = abp_bringup.bag_recorder_node:main',
             'bag_player = abp_bringup.bag_player:main',
             'health = abp_bringup.health:main',
+            'lifecycle_manager = abp_bringup.lifecycle_manager:main',
         ],
     },
 )

@@ -5,8 +5,10 @@
 #
 # By default it runs in simulation: the sim bridge stands in for the robot, with a
 # seeded random hidden cube from the model set. It bootstraps first on a fresh
-# machine, starts every node (with `ros2 run` where ros2 is on PATH, else the same
-# installed executables), waits until the graph is up, sends a Recognize goal,
+# machine, starts every node unconfigured (autostart:=false; with `ros2 run` where ros2
+# is on PATH, else the same installed executables) and the lifecycle manager, which
+# configures and activates them in order, waits for the manager's `graph ready` (every
+# node active, every topic between them matched), sends a Recognize goal,
 # prints the trace and the result, and stops every process (also on Ctrl-C).
 #
 # Options:
@@ -164,11 +166,19 @@ supervise() {
 }
 
 # start PACKAGE EXECUTABLE [ros args...]: ros2 run where available, else the installed file.
+# The managed nodes (`start_managed`) start unconfigured: the lifecycle manager brings them
+# up in the order they were started (and brings a respawned one back).
+managed=()
+start_managed() {
+  managed+=("$2")
+  start "$@" -p autostart:=false
+}
 start() {
   local package="$1" executable="$2"; shift 2
   local sim_time=(-p "use_sim_time:=true")
   [ "$robot" = 1 ] && sim_time=()
   [ "$package/$executable" = abp_sim_bridge/sim_bridge ] && sim_time=()
+  [ "$package/$executable" = abp_bringup/lifecycle_manager ] && sim_time=()
   local ros_args=(--ros-args --params-file "$config" --params-file "$model_params")
   [ -n "$params" ] && ros_args+=(--params-file "$params")
   ros_args+=("${ns_args[@]}" "${sim_time[@]}" "$@")
@@ -181,34 +191,56 @@ start() {
 
 echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo "sim ($world world)" ) graph${namespace:+ under /$namespace}, models $models, planner $planner, seed $seed; logs in $log_dir"
 if [ "$robot" = 0 ]; then
-  start abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
+  start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
     -p "cube_seed:=$seed" -p "speedup:=$speedup"
 fi
-start abp_perception artag_detector
-start abp_perception aspect_matcher
-start abp_belief belief
+start_managed abp_perception artag_detector
+start_managed abp_perception aspect_matcher
+start_managed abp_belief belief
 # The four action servers in one process: four processes, each with its own executor
 # taking /joint_states, /odom and /clock, cost about 1.2 cores of the 2 when idle.
-start abp_skills skill_servers
+start_managed abp_skills skill_servers
 # One BLAS thread: the planner's matrix products are small, and a thread pool fighting
 # the other nodes for 2 cores made first decisions at |M| = 1470 take up to 430 ms.
 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
-  start abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
+  start_managed abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
 if [ -n "$record" ]; then
   start abp_bringup bag_recorder -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
 fi
 
-# A node that dies at start-up (bad parameter, missing model file) ends the run.
-sleep 2
-for i in "${!pids[@]}"; do
-  if ! kill -0 "${pids[$i]}" 2>/dev/null; then
-    echo "[start_graph] a node exited at start-up; its log:" >&2
-    for log in "$log_dir"/*.log; do
-      grep -l "error" "$log" >/dev/null 2>&1 && { echo "== $log" >&2; tail -5 "$log" >&2; }
-    done
+node_list="$(IFS=,; echo "${managed[*]}")"
+start abp_bringup lifecycle_manager -p "node_names:=[$node_list]"
+manager_log="$log_dir/lifecycle_manager.log"
+
+# Wait for the manager's `graph ready`. A node that fails at start-up (a bad parameter or
+# a missing model file: configure refused; or a process that exits) ends the run with
+# its log shown.
+show_error_logs() {
+  for log in "$log_dir"/*.log; do
+    grep -qi "error\|failed" "$log" 2>/dev/null && { echo "== $log" >&2; tail -5 "$log" >&2; }
+  done
+}
+started_at=$SECONDS
+until grep -q "graph ready" "$manager_log" 2>/dev/null; do
+  if grep -q "bringup failed" "$manager_log" 2>/dev/null; then
+    echo "[start_graph] a node failed to start; its log:" >&2
+    show_error_logs
     exit 1
   fi
+  for i in "${!pids[@]}"; do
+    if ! kill -0 "${pids[$i]}" 2>/dev/null; then
+      echo "[start_graph] a node exited at start-up; its log:" >&2
+      show_error_logs
+      exit 1
+    fi
+  done
+  if [ $((SECONDS - started_at)) -ge 600 ]; then
+    echo "[start_graph] the graph is not ready after 600 s: $(grep "waiting:" "$manager_log" | tail -1)" >&2
+    exit 1
+  fi
+  sleep 0.2
 done
+echo "[start_graph] graph ready: ${managed[*]} active"
 
 if [ -n "$record" ]; then
   # Subscriptions match their publishers some time after a node starts: wait until

@@ -1,8 +1,8 @@
 """The crash test (issue 14): each of the six nodes killed with SIGKILL mid-episode, in
 turn, on one running graph (`python -m abp_bench.soak --episodes 0 --kill ...`, rules
 world). Each time the episode must end (correct, or aborted / lost with a reason), the
-node must be back (a new process answering a parameter request) and the next goal must
-succeed with the right object; no process of the graph may be left afterwards. The
+node must be back (a new process, active again under the lifecycle manager) and the next
+goal must succeed with the right object; no process of the graph may be left afterwards. The
 driver inherits this session's isolated ROS_DOMAIN_ID from the root conftest."""
 
 import json

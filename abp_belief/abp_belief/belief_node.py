@@ -18,11 +18,11 @@ import sys
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
@@ -39,9 +39,14 @@ from .model_set_config import MODEL_SET_PARAMETERS, MODEL_SET_SPECS, model_set_f
 INPUTS = qos.reliable(HELD_OBSERVATIONS)
 
 
-class BeliefNode(Node):
+class BeliefNode(ManagedNode):
+    """Configure loads the model set and the filter; activate opens the topics and the
+    reset service and publishes the prior (abp_common.lifecycle)."""
+
     def __init__(self):
         super().__init__('belief')
+
+    def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + BELIEF_SPECS)
         self.model_set = model_set_from_values(values)
         self.filter = BeliefFilter(self.model_set)
@@ -52,17 +57,19 @@ class BeliefNode(Node):
         self.health = NodeHealth(self)
         # One stream of time: observations guard the actions' stamps and the reverse.
         self._stamps = self.health.stamp_check()
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.add_post_set_parameters_callback(self._after_set_parameters)
+        self.get_logger().info(
+            f'belief over {self.model_set.num_models} models '
+            f'({self.model_set.num_nodes} aspect nodes, {len(self.model_set.aspects)} aspects)')
+
+    def activate(self):
         self._belief_pub = self.create_publisher(Belief, names.BELIEF, qos.LATCHED)
         self.health.subscribe(AspectObservation, names.ASPECT_OBSERVATION,
                               self._on_observation, INPUTS)
         self.health.subscribe(ExecutedAction, names.EXECUTED_ACTION,
                               self._on_executed_action, INPUTS)
         self.create_service(ResetBelief, names.RESET_BELIEF, self._on_reset)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.add_post_set_parameters_callback(self._after_set_parameters)
-        self.get_logger().info(
-            f'belief over {self.model_set.num_models} models '
-            f'({self.model_set.num_nodes} aspect nodes, {len(self.model_set.aspects)} aspects)')
         self._publish_belief()
 
     # -- parameters ---------------------------------------------------------------

@@ -15,7 +15,8 @@ Crash test (`--kill`): for each named node in turn, an episode is started, the n
 is killed with SIGKILL right after the first action is done, and the episode must end
 (correct, or aborted with a reason; a killed planner loses its goal, which the driver
 tells from the supervisor's restart line). The node must then be back (a new process,
-and its name in the ROS graph), and the next goal must succeed with the right object.
+active again: the lifecycle manager brings a respawned node up), and the next goal must
+succeed with the right object. The first goal waits for the manager's graph_ready.
 The crash episodes come after the `--episodes` soak episodes. At the end the graph is
 stopped with Ctrl-C and no process of it may be left.
 
@@ -38,11 +39,13 @@ import time
 import numpy as np
 import rclpy
 from action_msgs.msg import GoalStatus
-from rcl_interfaces.srv import GetParameters, SetParameters
+from lifecycle_msgs.srv import GetState
+from rcl_interfaces.srv import SetParameters
 from rclpy.action import ActionClient
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.signals import SignalHandlerOptions
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from abp_belief.population import robot_set
@@ -63,6 +66,7 @@ GRAPH_NODES = {
     'planner': ('abp_planner', 'planner'),
 }
 SIM_BRIDGE = '/sim_bridge'
+GRAPH_READY = '/lifecycle_manager/graph_ready'
 # Memory growth is measured from this episode (the first ones warm caches up).
 RSS_BASELINE_EPISODE = 10
 
@@ -182,6 +186,12 @@ class Driver:
                                       qos.LATCHED)
         self.node.create_subscription(ExecutedAction, names.EXECUTED_ACTION,
                                       self.executed.append, qos.reliable(50))
+        # The lifecycle manager's verdict: every node active, their topics matched.
+        self.graph_ready = False
+        self.node.create_subscription(Bool, GRAPH_READY, self._on_graph_ready, qos.LATCHED)
+
+    def _on_graph_ready(self, msg):
+        self.graph_ready = msg.data
 
     def _on_truth(self, msg):
         self.truth = msg
@@ -283,22 +293,29 @@ def run_episode(driver, graph, index, object_id, timeout, kill=None):
 
 
 def wait_until_back(driver, graph, name, old_pids, killed_at, timeout=180.0):
-    """Seconds from the kill until node `name` runs as a new process and answers a
-    parameter request; None if not within `timeout`. (Its name alone proves nothing: DDS
-    lists the killed node until its lease ends; a dead node answers nothing.)"""
+    """Seconds from the kill until node `name` runs as a new process and is active again
+    (the lifecycle manager brings a respawned node up); None if not within `timeout`.
+    (Its name alone proves nothing: DDS lists the killed node until its lease ends; a dead
+    node answers nothing.)"""
     deadline = time.monotonic() + timeout
     if not driver.spin_until(
             lambda: any(p not in old_pids for p in graph_pids(graph.log_dir)[name]), timeout):
         return None
-    client = driver.node.create_client(GetParameters, f'/{name}/get_parameters')
+    client = driver.node.create_client(GetState, f'/{name}/get_state')
     try:
-        driver.call(client, GetParameters.Request(names=['use_sim_time']),
-                    max(1.0, deadline - time.monotonic()))
+        while True:
+            state = driver.call(client, GetState.Request(),
+                                max(1.0, deadline - time.monotonic())).current_state.label
+            if state == 'active':
+                return time.monotonic() - killed_at
+            if time.monotonic() >= deadline:
+                return None
+            # Between two questions, take the graph's messages for a moment.
+            driver.spin_until(lambda: False, 0.2)
     except RuntimeError:
         return None
     finally:
         driver.node.destroy_client(client)
-    return time.monotonic() - killed_at
 
 
 def summarise(soak, crashes, rss, stopped, leftovers):
@@ -360,6 +377,8 @@ def parse_args(argv):
                         'distractors, orbit odometry noise (graph_benchmark --faults)')
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--ready-timeout', type=float, default=900.0,
+                        help="seconds to wait for the lifecycle manager's graph ready")
     parser.add_argument('--episode-timeout', type=float, default=600.0,
                         help='wall seconds an episode may take')
     parser.add_argument('--json', help='write every episode record and the RSS series here')
@@ -388,6 +407,8 @@ def main(argv=None):
     soak, crashes, rss = [], [], []
     failed = None
     try:
+        if not driver.spin_until(lambda: driver.graph_ready, args.ready_timeout):
+            raise RuntimeError(f'the graph was not ready within {args.ready_timeout:.0f} s')
         total = args.episodes + 2 * len(args.kill)
         plan = [None] * args.episodes + [n for name in args.kill for n in (name, None)]
         for index, kill in enumerate(plan):

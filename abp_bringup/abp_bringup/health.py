@@ -39,6 +39,8 @@ def summarize(statuses, width=100):
         node = name.removesuffix(': health')
         lines.append(f'{node:<24} {LEVELS.get(level_of(status), "?"):<6} '
                      f'{status.message}'[:width])
+        if values.get('lifecycle state', 'active') != 'active':
+            lines.append(f'  lifecycle state: {values["lifecycle state"]}')
         inputs = [f'{key[:-len(RATE)]} {value} Hz (last {values.get(key[:-len(RATE)] + AGE, "?")}'
                   f'{"" if values.get(key[:-len(RATE)] + AGE) == "never" else " s ago"})'
                   for key, value in values.items() if key.endswith(RATE)]

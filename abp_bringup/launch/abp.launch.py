@@ -11,6 +11,11 @@ contact rules and the flat renderer; fast).
 The model-set parameters are set once for every node (`SetParameter`, the launch form
 of the `/**:` section in config/abp.yaml); `namespace` puts every node (and so every
 topic, service and action, all relative) under that namespace.
+
+As in start_graph.sh, every managed node starts with `autostart: false` (respawned after
+1 s when it dies) and the lifecycle manager (`abp_bringup lifecycle_manager`) configures
+and activates them in dependency order, logs `graph ready` once they are all active and
+their topics matched, and brings a respawned node back to active.
 """
 
 import os
@@ -18,7 +23,7 @@ import os
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
-from launch.conditions import IfCondition
+from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node, SetParameter
 
@@ -29,10 +34,19 @@ def generate_launch_description():
     namespace = LaunchConfiguration('namespace')
     use_sim_time = PythonExpression(["'", sim, "' == 'true'"])
 
-    def node(package, executable, extra=None, sim_time=True, **kw):
+    def node(package, executable, extra=None, sim_time=True, managed=True, **kw):
         params = [config, {'use_sim_time': use_sim_time} if sim_time else {}, extra or {}]
+        if managed:
+            params.append({'autostart': False})
+            kw.update(respawn=True, respawn_delay=1.0)
         return Node(package=package, executable=executable, namespace=namespace,
                     output='screen', parameters=params, **kw)
+
+    def manager(node_names, condition):
+        return node('abp_bringup', 'lifecycle_manager', {'node_names': node_names},
+                    sim_time=False, managed=False, condition=condition)
+
+    graph = ['artag_detector', 'aspect_matcher', 'belief', 'skill_servers', 'planner']
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
@@ -59,4 +73,7 @@ def generate_launch_description():
         # One BLAS thread: see scripts/start_graph.sh.
         node('abp_planner', 'planner', {'planner_mode': LaunchConfiguration('planner')},
              additional_env={'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}),
+        # Brings the nodes up in this order (the sim bridge first, when there is one).
+        manager(['sim_bridge'] + graph, IfCondition(sim)),
+        manager(graph, UnlessCondition(sim)),
     ])

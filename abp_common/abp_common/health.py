@@ -6,8 +6,9 @@ DiagnosticArray, absolute like every ROS driver's, one DiagnosticStatus named
 `<node>: health`) every `diagnostics_period` wall seconds: per input topic its rate,
 input count and the age of its last input; per (topic, kind) the inputs rejected; the
 processing latency; and a level (OK / WARN / ERROR) with a one-line message
-(`health_stats.HealthStats.snapshot`). diagnostic_updater is the ROS package for this,
-but it is not installable from PyPI; this is the small part of it the graph needs.
+(`health_stats.HealthStats.snapshot`); a managed node adds its `lifecycle state`.
+diagnostic_updater is the ROS package for this, but it is not installable from PyPI;
+this is the small part of it the graph needs.
 
 `subscribe(msg_type, topic, callback, qos)` is create_subscription with the health
 accounting around the callback: each message is counted, a callback that raises
@@ -29,6 +30,7 @@ from .parameters import declare_all
 
 DIAGNOSTICS = '/diagnostics'
 HARDWARE_ID = 'abp'
+LIFECYCLE_STATE = 'lifecycle state'
 _LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
            ERROR: DiagnosticStatus.ERROR}
 
@@ -106,10 +108,13 @@ class NodeHealth:
     # -- output --------------------------------------------------------------------------
     def status(self):
         snap = self.stats.snapshot()
+        values = [KeyValue(key=k, value=v) for k, v in snap['values']]
+        state = getattr(self.node, 'state_label', None)
+        if state is not None:   # a managed node (abp_common.lifecycle)
+            values.append(KeyValue(key=LIFECYCLE_STATE, value=state()))
         return DiagnosticStatus(
             level=_LEVELS[snap['level']], name=self.name, message=snap['message'],
-            hardware_id=HARDWARE_ID,
-            values=[KeyValue(key=k, value=v) for k, v in snap['values']])
+            hardware_id=HARDWARE_ID, values=values)
 
     def publish(self):
         msg = DiagnosticArray(status=[self.status()])

@@ -5,12 +5,19 @@ A node whose construction fails on a bad parameter or file prints
 respawning launcher does not loop on a configuration that can never work); Ctrl-C ends
 the spin quietly, also when it shuts the context down under a running callback;
 `on_exit(node)` runs before the node is destroyed.
+
+A managed node (`lifecycle.ManagedNode`) is started here: with `autostart` true (the
+default) it configures and activates before the spin, and a configuration error in its
+configure() is reported the same way (code 2); with `autostart:=false` it spins
+unconfigured until a lifecycle manager drives it.
 """
 
 import sys
 
 import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+
+from .lifecycle import BASE_CONFIG_ERRORS, ManagedNode
 
 CONFIGURATION_ERROR_EXIT_CODE = 2
 
@@ -23,11 +30,15 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     ValueError and rclpy's InvalidParameterValueException). `make_executor` is called
     after rclpy.init (an executor needs the context)."""
     rclpy.init(args=args)
+    node = None
     try:
         node = make_node()
-    except (ValueError, rclpy.exceptions.InvalidParameterValueException,
-            *config_errors) as error:
+        if isinstance(node, ManagedNode):
+            node.start(config_errors)
+    except (*BASE_CONFIG_ERRORS, *config_errors) as error:
         print(f'[{name}] configuration error: {error}', file=sys.stderr)
+        if node is not None:
+            node.destroy_node()
         rclpy.try_shutdown()
         return CONFIGURATION_ERROR_EXIT_CODE
     executor = make_executor()

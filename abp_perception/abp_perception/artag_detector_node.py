@@ -35,12 +35,12 @@ import cv2
 import numpy as np
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation
@@ -66,9 +66,13 @@ DISTORTION_MODELS = {'plumb_bob': (0, 4, 5), 'rational_polynomial': (0, 8), '': 
 COMPRESSED_SUFFIX = '/compressed'     # image_transport's topic of the compressed transport
 
 
-class ArtagDetectorNode(Node):
+class ArtagDetectorNode(ManagedNode):
+    """Configure reads the parameters and the URDF; activate opens the topics."""
+
     def __init__(self):
         super().__init__('artag_detector')
+
+    def configure(self):
         self._values = declare_all(self, DETECTOR_SPECS)
         self.kinematics = RobotKinematics(self._values['urdf_file'] or None)
         self.base_frame = self._values['base_frame']
@@ -83,25 +87,27 @@ class ArtagDetectorNode(Node):
         self._joints = None
         self.health = NodeHealth(self)
         self._image_stamps = self.health.stamp_check()
-        self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
-                                          qos.RELIABLE)
         self.image_transport = self._values['image_transport']
-        if self.image_transport == 'compressed':
-            self.image_topic = names.IMAGE + COMPRESSED_SUFFIX
-            self.health.subscribe(CompressedImage, self.image_topic,
-                                  self._on_compressed_image, qos.SENSOR_DATA)
-        else:
-            self.image_topic = names.IMAGE
-            self.health.subscribe(Image, self.image_topic, self._on_image, qos.SENSOR_DATA)
-        self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
-                              qos.SENSOR_DATA)
-        self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,
-                              qos.SENSOR_DATA)
+        self.image_topic = names.IMAGE + (COMPRESSED_SUFFIX if self.image_transport ==
+                                          'compressed' else '')
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m "
             f'in {self.image_transport} images on {self.resolve_topic_name(self.image_topic)}; '
             f'poses in {self.base_frame} via {self.camera_frame} forward kinematics')
+
+    def activate(self):
+        self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
+                                          qos.RELIABLE)
+        if self.image_transport == 'compressed':
+            self.health.subscribe(CompressedImage, self.image_topic,
+                                  self._on_compressed_image, qos.SENSOR_DATA)
+        else:
+            self.health.subscribe(Image, self.image_topic, self._on_image, qos.SENSOR_DATA)
+        self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
+                              qos.SENSOR_DATA)
+        self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,
+                              qos.SENSOR_DATA)
 
     # -- parameters ---------------------------------------------------------------
     def _build_detector(self, config, camera_matrix, dist_coeffs, image_size=None):

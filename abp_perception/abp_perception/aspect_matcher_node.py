@@ -21,7 +21,6 @@ import sys
 import numpy as np
 from geometry_msgs.msg import Point, Vector3
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 
 from abp_belief.model_file import ModelFileError
 from abp_belief.model_set_config import (
@@ -32,6 +31,7 @@ from abp_belief.model_set_config import (
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation, rotation_from_quaternion
@@ -44,9 +44,13 @@ from .node_parameters import MATCHER_PARAMETERS, MATCHER_SPECS, matcher_options
 MAX_DETECTIONS = input_checks.MAX_FEATURES
 
 
-class AspectMatcherNode(Node):
+class AspectMatcherNode(ManagedNode):
+    """Configure loads the model set and builds the matcher; activate opens the topics."""
+
     def __init__(self):
         super().__init__('aspect_matcher')
+
+    def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + MATCHER_SPECS)
         # The same parameters as the belief node, so both see the same aspects.
         self.model_set = model_set_from_values(values)
@@ -55,14 +59,16 @@ class AspectMatcherNode(Node):
         self.matcher = self._build_matcher(self._config)
         self.health = NodeHealth(self)
         self._stamps = self.health.stamp_check()
-        self._pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
-                                          qos.RELIABLE)
-        self.health.subscribe(TagDetectionArray, names.TAG_DETECTIONS, self._on_detections,
-                              qos.RELIABLE)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.get_logger().info(
             f'matching against {len(self.model_set.aspects)} aspects of '
             f'{self.model_set.num_models} models (n_tags={self.model_set.n_tags})')
+
+    def activate(self):
+        self._pub = self.create_publisher(AspectObservation, names.ASPECT_OBSERVATION,
+                                          qos.RELIABLE)
+        self.health.subscribe(TagDetectionArray, names.TAG_DETECTIONS, self._on_detections,
+                              qos.RELIABLE)
 
     # -- parameters ---------------------------------------------------------------
     def _build_matcher(self, config):

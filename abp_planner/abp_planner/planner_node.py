@@ -26,7 +26,6 @@ import rclpy
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from rclpy.node import Node
 from visualization_msgs.msg import MarkerArray
 
 from abp_belief.cube import ACTIONS
@@ -35,6 +34,7 @@ from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_msgs.action import Recognize
@@ -58,9 +58,14 @@ from .stopping import STOP_RULES, StoppingRule
 
 # Candidates a Recognize result lists.
 TOP_CANDIDATES = 5
-class PlannerNode(Node):
+class PlannerNode(ManagedNode):
+    """Configure loads the model set; activate opens the topics, the clients and the
+    Recognize server (abp_common.lifecycle)."""
+
     def __init__(self):
         super().__init__('planner')
+
+    def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
         self.model_set = model_set_from_values(values)
         self.model_set_id = fingerprint(self.model_set)
@@ -78,7 +83,11 @@ class PlannerNode(Node):
         self.health = NodeHealth(self)
         self._belief_stamps = self.health.stamp_check()
         self._observation_stamps = self.health.stamp_check()
+        self._ready_line = (f'planner ready over {self.model_set.num_models} models '
+                            f'(mode {values["planner_mode"]}, '
+                            f'stopping rule {values["stopping_rule"]})')
 
+    def activate(self):
         # A deep reader: a burst on the topic must not push out the belief not yet taken.
         self._belief_sub = self.health.subscribe(
             Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
@@ -99,9 +108,7 @@ class PlannerNode(Node):
             self, Recognize, names.RECOGNIZE, self._execute,
             goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=self._group)
-        self.get_logger().info(
-            f'planner ready over {self.model_set.num_models} models '
-            f'(mode {values["planner_mode"]}, stopping rule {values["stopping_rule"]})')
+        self.get_logger().info(self._ready_line)
 
     def _param(self, name):
         return self.get_parameter(name).value

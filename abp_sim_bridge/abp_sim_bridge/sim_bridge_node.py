@@ -53,7 +53,6 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion, Twist
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
@@ -62,6 +61,7 @@ from trajectory_msgs.msg import JointTrajectory
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_description import camera_intrinsics
@@ -99,9 +99,17 @@ class _Frame:
     snapshot: tuple     # camera.capture(...)
 
 
-class SimBridgeNode(Node):
+class SimBridgeNode(ManagedNode):
+    """Configure builds the world; activate opens the topics and starts the simulation
+    and render threads; deactivate stops them (abp_common.lifecycle)."""
+
     def __init__(self):
         super().__init__('sim_bridge')
+        self._stop = threading.Event()
+        self._failed = False
+        self._threads = []
+
+    def configure(self):
         try:
             values = declare_all(self, cfg.PARAMETERS, note=cfg.description_note)
         except rclpy.exceptions.InvalidParameterTypeException as error:
@@ -113,8 +121,6 @@ class SimBridgeNode(Node):
         self.kin = RobotKinematics()
         self.intrinsics = camera_intrinsics()
         self._lock = threading.Lock()
-        self._stop = threading.Event()
-        self._failed = False
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
         self.health = NodeHealth(self)
@@ -122,7 +128,24 @@ class SimBridgeNode(Node):
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
                                    for c in CONTROLLERS}
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self._camera_info = self._camera_info_msg()
+        self._joint_msg = JointState(name=list(self.kin.joint_names))
+        self._odom = Odometry()
+        self._odom.header.frame_id, self._odom.child_frame_id = ODOM_FRAME, BASE_FRAME
+        self._clock_msg = Clock()
+        h = self.config.hidden
+        self.get_logger().info(
+            f'sim_bridge: {self.config.world} world, hidden cube {h.object_id} '
+            f'(model_index {h.model_index}), '
+            f'{self.config.settings.rate:g} Hz, camera {self.config.camera.rate:g} Hz, '
+            f'speedup {self.config.speedup:g}, publish_clock {self.config.publish_clock}')
+        if not self.config.publish_clock:
+            self._epoch_ns = time.time_ns()
+        self._pacer = Pacer(self.config.speedup, self.sim.time_ns)
 
+    def activate(self):
+        self._pacer = Pacer(self.config.speedup, self.sim.time_ns)   # wall time starts now
         self._clock_pub = (self.create_publisher(Clock, names.CLOCK, qos.RELIABLE)
                            if self.config.publish_clock else None)
         self._joint_pub = self.create_publisher(JointState, names.JOINT_STATES, qos.RELIABLE)
@@ -138,28 +161,16 @@ class SimBridgeNode(Node):
                 lambda msg, c=controller: self._on_trajectory(c, msg), qos.RELIABLE)
         # ~/reset_world: names.RESET_WORLD for the node named sim_bridge.
         self.create_service(Trigger, '~/reset_world', self._on_reset)
-        self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._camera_info = self._camera_info_msg()
-        self._joint_msg = JointState(name=list(self.kin.joint_names))
-        self._odom = Odometry()
-        self._odom.header.frame_id, self._odom.child_frame_id = ODOM_FRAME, BASE_FRAME
-        self._clock_msg = Clock()
-
-        h = self.config.hidden
-        self.get_logger().info(
-            f'sim_bridge: {self.config.world} world, hidden cube {h.object_id} '
-            f'(model_index {h.model_index}), '
-            f'{self.config.settings.rate:g} Hz, camera {self.config.camera.rate:g} Hz, '
-            f'speedup {self.config.speedup:g}, publish_clock {self.config.publish_clock}')
         self._frames = queue.Queue(maxsize=1)
-        if not self.config.publish_clock:
-            self._epoch_ns = time.time_ns()
-        self._pacer = Pacer(self.config.speedup, self.sim.time_ns)
+        self._stop.clear()
         self._threads = [threading.Thread(target=self._sim_loop, name='sim', daemon=True),
                          threading.Thread(target=self._render_loop, name='render',
                                           daemon=True)]
         for thread in self._threads:
             thread.start()
+
+    def deactivate(self):
+        self.stop()
 
     # -- parameters and the world -----------------------------------------------------
     def _on_set_parameters(self, params):

@@ -49,11 +49,11 @@ import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
-from rclpy.node import Node
 from std_msgs.msg import String
 
 from abp_common import input_checks, names
 from abp_common.health import NodeHealth
+from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.param_spec import check_all
 from abp_common.parameters import declare_all, read_all
@@ -71,11 +71,18 @@ from .skill_params import config_from_values, skills_parameter_specs
 EXECUTOR_THREADS = 8   # concurrent goals, feasibility answers and sensor callbacks
 
 
-class SkillsNode(Node):
+class SkillsNode(ManagedNode):
+    """Configure reads the parameters and builds the motion planner; activate opens the
+    robot's topics and the action (and feasibility) servers (abp_common.lifecycle)."""
+
     def __init__(self, node_name='skill_servers', skills=names.SKILLS, feasibility=True):
         super().__init__(node_name)
-        self._specs = skills_parameter_specs(feasibility)
-        values = declare_all(self, self._specs)
+        self._skills = skills
+        self._feasibility = feasibility
+
+    def configure(self):
+        self._specs = skills_parameter_specs(self._feasibility)
+        values = self._values = declare_all(self, self._specs)
         self.health = NodeHealth(self)   # declares its parameters: before the callback below
         # The motion planner owns one Pinocchio model/data (used under plan_lock); the
         # node's own forward kinematics (head aiming, estimate frames) use another (fk_lock).
@@ -86,6 +93,9 @@ class SkillsNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.callback_group = ReentrantCallbackGroup()
         self.state = RobotState(self.now, self.kin.q_from_mapping)
+
+    def activate(self):
+        skills = self._skills
         self.inputs = RobotInputs(self)
         self.commands = RobotCommands(self)
 
@@ -96,13 +106,16 @@ class SkillsNode(Node):
         self.health.subscribe(String, names.SKILLS_ACTIVE, self._on_skills_state,
                               LATCHED_READER, callback_group=self.callback_group)
         self.actions = SkillActionServers(self, skills)
-        self.feasibility = (FeasibilityService(self) if values['feasibility_service']
+        self.feasibility = (FeasibilityService(self) if self._values['feasibility_service']
                             else None)
         self.claim.announce()
         hosted = [self.resolve_topic_name(names.skill_action(s)) for s in skills]
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
         self.get_logger().info(f'skills ready: {", ".join(hosted) or "nothing hosted"}')
+
+    def deactivate(self):
+        _stop_robot(self)
 
     def _on_skills_state(self, msg):
         input_checks.skills_state(msg.data)     # Rejected: not a skills state

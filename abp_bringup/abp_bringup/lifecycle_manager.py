@@ -1,0 +1,227 @@
+"""The graph's lifecycle manager: `ros2 run abp_bringup lifecycle_manager`.
+
+Like nav2_lifecycle_manager: it brings the managed nodes of `node_names` up in that order
+(configure, then activate, through each node's `<node>/change_state` service), watches
+them every `check_period` s, and declares the graph ready when every node is active and
+every topic edge between two managed nodes is matched on both ends (each node's
+`<node>/endpoint_status`, abp_common.lifecycle; the rule is
+abp_common.lifecycle_report.unmatched). Then it logs `graph ready` once and publishes
+true on `~/graph_ready` (std_msgs/Bool, latched); `~/is_active` (std_srvs/Trigger)
+answers the same. When the graph stops being ready (a node died, was deactivated) it
+logs `graph not ready: <why>` and publishes false.
+
+Each node instance (process) is brought up once: a node that refuses a transition is
+logged (`bringup failed: <node> refused to configure ...`; the node's own log says why)
+and not asked again, and a node deactivated or cleaned up by someone else stays so. A
+respawned node is a new instance: the manager sees it unconfigured and brings it back
+to active. Until the graph was first ready, a node waits for the nodes before it in
+`node_names` (dependency order). With `autostart:=false` the manager only watches until
+`~/startup` (std_srvs/Trigger) is called, which also brings every node that is not
+active up again.
+"""
+
+import json
+import sys
+import threading
+import time
+
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from rclpy.node import Node
+from std_msgs.msg import Bool
+from std_srvs.srv import Trigger
+
+from abp_common import qos
+from abp_common.lifecycle_report import next_transition, not_active, unmatched
+from abp_common.node_runner import run_node
+from abp_common.param_spec import BOOL, DOUBLE, STRING_ARRAY, ParamSpec
+from abp_common.parameters import declare_all
+
+# Dependency order: the sim bridge's clock and sensors first, the planner last.
+GRAPH_NODES = ('sim_bridge', 'artag_detector', 'aspect_matcher', 'belief', 'skill_servers',
+               'planner')
+READY_LINE = 'graph ready'
+TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
+               'activate': Transition.TRANSITION_ACTIVATE}
+MANAGER_SPECS = [
+    ParamSpec('node_names', STRING_ARRAY, list(GRAPH_NODES),
+              'The managed nodes, in the order they are configured and activated (names '
+              "relative to the manager's namespace).", read_only=True),
+    ParamSpec('autostart', BOOL, True,
+              'Bring the nodes up at once (true), or only watch until ~/startup is called.',
+              read_only=True),
+    ParamSpec('check_period', DOUBLE, 0.5, 'Seconds between two checks of the nodes.',
+              (0.05, 60.0)),
+    ParamSpec('service_timeout', DOUBLE, 5.0,
+              "Seconds to wait for a node's endpoint_status answer.", (0.1, 600.0)),
+    ParamSpec('transition_timeout', DOUBLE, 300.0,
+              'Seconds to wait for a configure or activate to finish (loading a large '
+              'model set takes a while); a node that does not answer is asked again.',
+              (1.0, 3600.0)),
+    ParamSpec('log_period', DOUBLE, 10.0,
+              'Seconds between two log lines saying what the graph is waiting for.',
+              (0.5, 3600.0)),
+]
+
+
+class LifecycleManager(Node):
+    def __init__(self):
+        super().__init__('lifecycle_manager')
+        self.values = declare_all(self, MANAGER_SPECS)
+        self.node_names = list(self.values['node_names'])
+        if not self.node_names:
+            raise ValueError('parameter node_names: no node to manage')
+        self._status = {n: self.create_client(Trigger, f'{n}/endpoint_status')
+                        for n in self.node_names}
+        self._change = {n: self.create_client(ChangeState, f'{n}/change_state')
+                        for n in self.node_names}
+        self._settled = {}          # node -> the instance brought up (or refused) last
+        self._ready = None
+        self._was_ready = False
+        self._why = 'not checked yet'
+        self._last_log = 0.0
+        self._managing = threading.Event()
+        if self.values['autostart']:
+            self._managing.set()
+        self._ready_pub = self.create_publisher(Bool, '~/graph_ready', qos.LATCHED)
+        self._ready_pub.publish(Bool(data=False))
+        self.create_service(Trigger, '~/is_active', self._on_is_active)
+        self.create_service(Trigger, '~/startup', self._on_startup)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._loop, name='manager', daemon=True)
+        self._thread.start()
+        self.get_logger().info(f'managing {", ".join(self.node_names)}'
+                               f'{"" if self.values["autostart"] else " (waiting for startup)"}')
+
+    # -- services ------------------------------------------------------------------------
+    def _on_is_active(self, request, response):
+        response.success = bool(self._ready)
+        response.message = READY_LINE if self._ready else f'not ready: {self._why}'
+        return response
+
+    def _on_startup(self, request, response):
+        self._settled.clear()
+        self._managing.set()
+        response.success = True
+        response.message = f'bringing up {", ".join(self.node_names)}'
+        return response
+
+    def stop(self):
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    # -- the watch loop (its own thread; the executor takes the answers) -----------------
+    def _loop(self):
+        while not self._stop.is_set() and self.context.ok():
+            try:
+                self._check()
+            except Exception as error:  # noqa: BLE001 -- keep watching
+                if not self.context.ok():
+                    return
+                self.get_logger().error(f'check failed: {type(error).__name__}: {error}')
+            self._stop.wait(self.values['check_period'])
+
+    def _check(self):
+        reports = self._reports(self.node_names)
+        if self._managing.is_set():
+            for name in self.node_names:
+                report = reports.get(name)
+                if report is not None:
+                    report = self._bring_up(name, report) or report
+                    reports[name] = report
+                if not self._was_ready and (report is None or report['state'] != 'active'):
+                    break       # first bring-up: the next nodes wait for this one
+        self._update_ready(reports)
+
+    def _bring_up(self, name, report):
+        """Configure and/or activate one node instance; returns its new report."""
+        instance = report['instance']
+        while True:
+            transition = next_transition(report['state'], instance, self._settled.get(name))
+            if transition is None:
+                if report['state'] == 'active':
+                    self._settled[name] = instance
+                return report
+            answer = self._call(self._change[name], ChangeState.Request(
+                transition=Transition(id=TRANSITIONS[transition])),
+                self.values['transition_timeout'])
+            if answer is None:
+                self.get_logger().warning(f'{name}: no answer to {transition} within '
+                                          f'{self.values["transition_timeout"]:g} s; asking '
+                                          'again')
+                return None
+            if not answer.success:
+                self._settled[name] = instance
+                self.get_logger().error(f'bringup failed: {name} refused to {transition} '
+                                        '(its log says why); it is not asked again until it '
+                                        'restarts')
+                return self._reports([name]).get(name)
+            self.get_logger().info(f'{name}: {transition}d')
+            report = self._reports([name]).get(name)
+            if report is None or report['instance'] != instance:
+                return report
+
+    def _reports(self, names):
+        """{node: endpoint report} of the nodes that answer, asked all at once."""
+        pending = {}
+        for name in names:
+            client = self._status[name]
+            if client.service_is_ready():
+                pending[name] = self._send(client, Trigger.Request())
+        deadline = time.monotonic() + self.values['service_timeout']
+        reports = {}
+        for name, (future, event) in pending.items():
+            if event.wait(max(0.0, deadline - time.monotonic())) and future.result():
+                try:
+                    reports[name] = json.loads(future.result().message)
+                except ValueError:
+                    self.get_logger().warning(f'{name}: endpoint_status is not JSON')
+            else:
+                self._status[name].remove_pending_request(future)
+        return reports
+
+    def _send(self, client, request):
+        event = threading.Event()
+        future = client.call_async(request)
+        future.add_done_callback(lambda _: event.set())
+        return future, event
+
+    def _call(self, client, request, timeout):
+        if not client.wait_for_service(timeout_sec=min(timeout, 5.0)):
+            return None
+        future, event = self._send(client, request)
+        if not event.wait(timeout):
+            client.remove_pending_request(future)
+            return None
+        return future.result()
+
+    # -- readiness -----------------------------------------------------------------------
+    def _update_ready(self, reports):
+        waiting = not_active(reports, self.node_names)
+        if not waiting:
+            waiting = unmatched(reports)
+        ready = not waiting
+        self._why = '; '.join(waiting) if waiting else ''
+        now = time.monotonic()
+        if ready != self._ready:
+            self._ready_pub.publish(Bool(data=ready))
+            if ready:
+                self._was_ready = True
+                self.get_logger().info(f'{READY_LINE}: {", ".join(self.node_names)} active, '
+                                       'their topics matched')
+            elif self._ready is not None:
+                self.get_logger().warning(f'graph not ready: {self._why}')
+            self._last_log = now
+        elif not ready and now - self._last_log >= self.values['log_period']:
+            self.get_logger().info(f'waiting: {self._why}')
+            self._last_log = now
+        self._ready = ready
+
+
+def main(args=None):
+    return run_node('lifecycle_manager', LifecycleManager, args,
+                    on_exit=lambda node: node.stop())
+
+
+if __name__ == '__main__':
+    sys.exit(main())

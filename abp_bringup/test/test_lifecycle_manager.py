@@ -1,0 +1,163 @@
+"""Managed nodes and the lifecycle manager over real DDS (issue 14, item 1).
+
+Two nodes (aspect_matcher, belief) start with `autostart:=false` and wait unconfigured;
+the manager configures and activates them in order and says `graph ready`; a belief
+deactivated by hand publishes and serves nothing and the manager leaves it so; a belief
+cleaned up and then killed is replaced by a new process, which the manager brings back to
+active. And a node whose configure fails under the manager stays up, unconfigured, with
+the reason in its log, and is not asked again. Every wait is on an event (a log line, a
+service answer, a message, the graph); the root conftest gives the session its own
+ROS_DOMAIN_ID and kills every process at teardown.
+"""
+
+import json
+import os
+
+import pytest
+
+rclpy = pytest.importorskip('rclpy')
+ament_index = pytest.importorskip('ament_index_python.packages')
+
+from lifecycle_msgs.msg import Transition  # noqa: E402
+from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from std_msgs.msg import Bool  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
+
+from abp_common.qos import LATCHED  # noqa: E402
+from abp_msgs.msg import Belief  # noqa: E402
+
+TIMEOUT = 120.0
+WAITING = 'unconfigured: waiting for a lifecycle manager'
+
+
+def executable(package, name):
+    return os.path.join(ament_index.get_package_prefix(package), 'lib', package, name)
+
+
+def start_node(ros_processes, package, name, *params):
+    args = [executable(package, name), '--ros-args', '-p', 'autostart:=false']
+    for param in params:
+        args += ['-p', param]
+    return ros_processes.start(args)
+
+
+@pytest.fixture
+def tester(rclpy_context):
+    node = rclpy.create_node('lifecycle_tester', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    yield node, executor
+    executor.shutdown()
+    node.destroy_node()
+
+
+def state_of(tester, call_service, name):
+    node, executor = tester
+    client = node.create_client(GetState, f'/{name}/get_state')
+    try:
+        return call_service(executor, client, GetState.Request(), TIMEOUT).current_state.label
+    finally:
+        node.destroy_client(client)
+
+
+def change(tester, call_service, name, transition):
+    node, executor = tester
+    client = node.create_client(ChangeState, f'/{name}/change_state')
+    try:
+        return call_service(executor, client, ChangeState.Request(
+            transition=Transition(id=transition)), TIMEOUT).success
+    finally:
+        node.destroy_client(client)
+
+
+def endpoint_status(tester, call_service, name):
+    node, executor = tester
+    client = node.create_client(Trigger, f'/{name}/endpoint_status')
+    try:
+        return json.loads(call_service(executor, client, Trigger.Request(), TIMEOUT).message)
+    finally:
+        node.destroy_client(client)
+
+
+def test_manager_brings_nodes_up_in_order_and_back_after_a_respawn(
+        ros_processes, tester, spin, call_service):
+    node, executor = tester
+    matcher = start_node(ros_processes, 'abp_perception', 'aspect_matcher')
+    belief = start_node(ros_processes, 'abp_belief', 'belief')
+    for proc in (matcher, belief):
+        ros_processes.wait_for_line(proc, WAITING, TIMEOUT)
+    assert state_of(tester, call_service, 'aspect_matcher') == 'unconfigured'
+    assert state_of(tester, call_service, 'belief') == 'unconfigured'
+    assert endpoint_status(tester, call_service, 'belief')['outputs'] == {}
+
+    ready = []
+    node.create_subscription(Bool, '/lifecycle_manager/graph_ready',
+                             lambda msg: ready.append(msg.data), LATCHED)
+    beliefs = []
+    node.create_subscription(Belief, '/abp/belief', beliefs.append, LATCHED)
+    manager = ros_processes.start([
+        executable('abp_bringup', 'lifecycle_manager'), '--ros-args',
+        '-p', 'node_names:=[aspect_matcher,belief]', '-p', 'check_period:=0.2'])
+    lines = ''.join(ros_processes.wait_for_line(manager, 'graph ready', TIMEOUT))
+    # Dependency order: the matcher is active before the belief is configured.
+    assert lines.index('aspect_matcher: activated') < lines.index('belief: configured'), lines
+    assert spin(executor, lambda: ready and ready[-1], TIMEOUT), ready
+    assert state_of(tester, call_service, 'aspect_matcher') == 'active'
+    assert state_of(tester, call_service, 'belief') == 'active'
+    status = endpoint_status(tester, call_service, 'belief')
+    assert status['inputs']['/abp/aspect_observation'] >= 1, status
+    assert spin(executor, lambda: beliefs, TIMEOUT), 'no belief from the active node'
+
+    # Deactivate: the belief's publisher, subscriptions and service are gone; the manager
+    # says the graph is not ready and leaves the node inactive.
+    assert change(tester, call_service, 'belief', Transition.TRANSITION_DEACTIVATE)
+    assert state_of(tester, call_service, 'belief') == 'inactive'
+    status = endpoint_status(tester, call_service, 'belief')
+    assert '/abp/belief' not in status['outputs'] and status['inputs'] == {}, status
+    assert spin(executor, lambda: node.count_publishers('/abp/belief') == 0, TIMEOUT)
+    ros_processes.wait_for_line(manager, 'graph not ready: belief is inactive', TIMEOUT)
+    assert spin(executor, lambda: ready[-1] is False, TIMEOUT), ready
+    count = len(beliefs)
+
+    # Cleanup (possible only from inactive: the manager did not activate it again).
+    assert change(tester, call_service, 'belief', Transition.TRANSITION_CLEANUP)
+    assert state_of(tester, call_service, 'belief') == 'unconfigured'
+    old_instance = endpoint_status(tester, call_service, 'belief')['instance']
+    assert len(beliefs) == count, 'an inactive belief node published'
+
+    # A respawn (as start_graph.sh does after a crash): a new unconfigured process, which
+    # the manager brings back to active.
+    belief.kill()
+    belief.wait(timeout=30)
+    belief = start_node(ros_processes, 'abp_belief', 'belief')
+    ros_processes.wait_for_line(manager, 'graph ready', TIMEOUT)
+    assert state_of(tester, call_service, 'belief') == 'active'
+    status = endpoint_status(tester, call_service, 'belief')
+    assert status['instance'] != old_instance and status['state'] == 'active', status
+    assert spin(executor, lambda: len(beliefs) > count, TIMEOUT), 'no belief after respawn'
+    assert spin(executor, lambda: ready[-1] is True, TIMEOUT), ready
+
+
+def test_a_configure_failure_under_the_manager_is_reported_once(ros_processes, tester,
+                                                                 call_service):
+    belief = start_node(ros_processes, 'abp_belief', 'belief', 'top_k:=0')
+    ros_processes.wait_for_line(belief, WAITING, TIMEOUT)
+    manager = ros_processes.start([
+        executable('abp_bringup', 'lifecycle_manager'), '--ros-args',
+        '-p', 'node_names:=[belief]', '-p', 'check_period:=0.2', '-p', 'log_period:=0.5'])
+    ros_processes.wait_for_line(manager, 'bringup failed: belief refused to configure',
+                                TIMEOUT)
+    ros_processes.wait_for_line(belief, 'configure failed: configuration error', TIMEOUT)
+    # The node is still there, unconfigured, and answers.
+    assert state_of(tester, call_service, 'belief') == 'unconfigured'
+    assert belief.poll() is None
+    # Asked once: the manager's next `waiting:` line comes log_period (several checks)
+    # after the failure, and by then the belief has logged no second failure.
+    ros_processes.wait_for_line(manager, 'waiting: belief is unconfigured', TIMEOUT)
+    node, executor = tester
+    client = node.create_client(Trigger, '/lifecycle_manager/is_active')
+    answer = call_service(executor, client, Trigger.Request(), TIMEOUT)
+    assert not answer.success and 'belief is unconfigured' in answer.message, answer.message
+    ros_processes.stop_all()
+    assert ros_processes.transcript(belief).count('configure failed') == 1

@@ -6,8 +6,8 @@ Examples:
   learn_atg --survey bench_out/survey/survey.json --out learned_robot.npz
   learn_atg --survey bench_out/survey/survey.json --set full --out learned_full.npz \\
       --report learned_vs_hand.md
-  learn_atg --survey survey.json --alpha 0 --contact-fault-rate 0 \
-      --out survey_table.npz                                     # empirical (a world)
+  learn_atg --survey survey.json --alpha 0 --out survey_table.npz     # empirical (a world)
+  learn_atg --survey survey.json --contact-fault-rate 0.1 --out learned_faults.npz
   learn_atg --survey survey.json --trials-per-class 5 --out learned_n5.npz
   learn_atg --bags labels.yaml --seed 1 --out learned_bags.npz    # recorded episodes
 
@@ -78,12 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--bags: at most this many observations' worth of evidence per "
                    'state between two actions (default '
                    f'{atg_from_bags.DEFAULT_VIEWS_PER_SEGMENT:g})')
-    p.add_argument('--contact-fault-rate', type=float, default=None, metavar='F',
+    p.add_argument('--contact-fault-rate', type=float, default=0.0, metavar='F',
                    help="the robot's rate of PUSH/LIFT/FLIP that report success but never "
                    "moved the cube (missed push, slipped grasp), mixed into the learned rows "
-                   "as 'no change'. Default: with --survey (run without robot faults) the "
-                   "model set's p_fail_* (0.1, the hand-written table's failure model); with "
-                   "--bags 0 (the robot's own experience already holds its faults)")
+                   "as 'no change' (atg_learning.with_contact_faults); e.g. 0.1, the model "
+                   "set's p_fail_*. For experience without robot faults (the survey); the "
+                   "robot's own bags already hold its faults. Default 0")
     p.add_argument('--report', metavar='MD', help='write learned vs hand-written (Markdown)')
     p.add_argument('--json', action='store_true', help='print a JSON summary')
     return p
@@ -102,10 +102,10 @@ def _population(args):
 
 
 def _fault_rates(args) -> dict:
-    if args.contact_fault_rate is None:
-        return {} if args.bags else atg_learning.robot_fault_rates()
-    return {action: args.contact_fault_rate for action in ('PUSH', 'LIFT', 'FLIP')
-            if args.contact_fault_rate > 0}
+    rate = args.contact_fault_rate
+    if not 0.0 <= rate < 1.0:
+        raise ValueError(f'--contact-fault-rate must be in [0, 1), got {rate}')
+    return {action: rate for action in ('PUSH', 'LIFT', 'FLIP')} if rate > 0 else {}
 
 
 def main(argv=None) -> int:

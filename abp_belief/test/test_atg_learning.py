@@ -235,13 +235,14 @@ def test_learn_atg_cli(tmp_path, capsys):
     assert summary['transitions'] == 42 and summary['models'] == 30
     loaded = population.model_set_from_config(model_file=str(out))   # as every node loads it
     assert loaded.learning['source']['kind'] == 'outcome_survey'
-    assert loaded.learning['contact_fault_rates'] == {'PUSH': 0.1, 'LIFT': 0.1, 'FLIP': 0.1}
-    empirical = tmp_path / 'empirical.npz'
-    assert learn_atg(['--survey', str(survey), '--alpha', '0', '--contact-fault-rate', '0',
-                      '--out', str(empirical)]) == 0
-    assert population.model_set_from_config(
-        model_file=str(empirical)).learning['contact_fault_rates'] == {}
-    capsys.readouterr()
+    assert loaded.learning['contact_fault_rates'] == {}
+    faulty = tmp_path / 'faulty.npz'
+    assert learn_atg(['--survey', str(survey), '--contact-fault-rate', '0.1',
+                      '--out', str(faulty)]) == 0
+    assert population.model_set_from_config(model_file=str(faulty)).learning[
+        'contact_fault_rates'] == {'PUSH': 0.1, 'LIFT': 0.1, 'FLIP': 0.1}
+    assert learn_atg(['--survey', str(survey), '--contact-fault-rate', '1.5']) == 2
+    assert '--contact-fault-rate must be in [0, 1)' in capsys.readouterr().err
     text = report.read_text()
     assert '| LIFT | uniform, even yaw | 24 | 3 |' in text and 'TV' in text
     assert learn_atg(['--survey', str(tmp_path / 'none.json')]) == 2

@@ -83,13 +83,21 @@ def test_replay_reproduces_the_recorded_identification(bag, ros_processes, rclpy
     # (Step counts differ: the live run's planner reset the belief after the first
     # observation, and resets are not on a recorded topic.)
     final_stamp = (last_belief.header.stamp.sec, last_belief.header.stamp.nanosec)
-    assert spin(executor, lambda: (beliefs[-1].header.stamp.sec,
-                                   beliefs[-1].header.stamp.nanosec) >= final_stamp, 30), \
-        f'replay stopped at stamp {beliefs[-1].header.stamp}, the live run at {final_stamp}'
-    spin(executor, lambda: False, 1.0)
-    replayed = beliefs[-1]
-    assert (replayed.header.stamp.sec, replayed.header.stamp.nanosec) == final_stamp
-    assert replayed.object_ids[0] == truth.object_id
-    assert replayed.probabilities[0] == pytest.approx(last_belief.probabilities[0], abs=0.05)
+
+    def reproduces(belief):
+        # Not necessarily stamped exactly as the live one: at 5x the pace, on a loaded
+        # machine, the matcher's observation of a frame can reach the belief node on the
+        # other side of an action message than it did live, so the gate may take the next
+        # frame of the same view; and the bag holds frames recorded after the live run's
+        # last belief that a replay can apply before this check.
+        return ((belief.header.stamp.sec, belief.header.stamp.nanosec) >= final_stamp
+                and belief.object_ids[0] == truth.object_id
+                and abs(belief.probabilities[0] - last_belief.probabilities[0]) <= 0.05)
+
+    assert spin(executor, lambda: any(map(reproduces, beliefs)), 30), \
+        (f"no replayed belief at or after the live run's last (stamp {final_stamp}, "
+         f'{truth.object_id} {last_belief.probabilities[0]:.3f}); the last replayed: ' +
+         ', '.join(f'{b.header.stamp.sec}.{b.header.stamp.nanosec:09d} {b.object_ids[0]} '
+                   f'{b.probabilities[0]:.3f}' for b in beliefs[-4:]))
     executor.shutdown()
     node.destroy_node()

@@ -149,6 +149,20 @@ def rclpy_context():
     rclpy.try_shutdown(context=context)
 
 
+@pytest.fixture
+def tester(rclpy_context):
+    """(node, executor): a test's own node in `rclpy_context` on a single-threaded
+    executor, destroyed at teardown."""
+    rclpy = pytest.importorskip('rclpy')
+    from rclpy.executors import SingleThreadedExecutor
+    node = rclpy.create_node('tester', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    yield node, executor
+    executor.shutdown()
+    node.destroy_node()
+
+
 def spin_until(executor, predicate, timeout):
     """Spin `executor` until `predicate()` is true or `timeout` seconds pass."""
     deadline = time.monotonic() + timeout

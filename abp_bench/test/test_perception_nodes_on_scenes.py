@@ -15,7 +15,6 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
                 allow_module_level=True)
 
 from builtin_interfaces.msg import Time  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
 
 from abp_belief import cube  # noqa: E402
@@ -59,16 +58,6 @@ def mono8_msg(gray, frame_id, stamp):
                 step=gray.shape[1], data=gray.tobytes())
     msg.header.frame_id, msg.header.stamp = frame_id, stamp
     return msg
-
-
-@pytest.fixture
-def tester(rclpy_context):
-    node = rclpy.create_node('perception_scene_tester', context=rclpy_context)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(node)
-    yield node, executor
-    executor.shutdown()
-    node.destroy_node()
 
 
 def test_rendered_image_gives_the_right_aspect_observation(ros_processes, tester, spin,

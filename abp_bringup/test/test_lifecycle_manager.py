@@ -20,7 +20,6 @@ ament_index = pytest.importorskip('ament_index_python.packages')
 
 from lifecycle_msgs.msg import Transition  # noqa: E402
 from lifecycle_msgs.srv import ChangeState, GetState  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from std_msgs.msg import Bool  # noqa: E402
 from std_srvs.srv import Trigger  # noqa: E402
 
@@ -40,16 +39,6 @@ def start_node(ros_processes, package, name, *params):
     for param in params:
         args += ['-p', param]
     return ros_processes.start(args)
-
-
-@pytest.fixture
-def tester(rclpy_context):
-    node = rclpy.create_node('lifecycle_tester', context=rclpy_context)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(node)
-    yield node, executor
-    executor.shutdown()
-    node.destroy_node()
 
 
 def state_of(tester, call_service, name):

@@ -19,7 +19,6 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
                 allow_module_level=True)
 
 from builtin_interfaces.msg import Time  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
@@ -70,16 +69,6 @@ def publish_until_printed(ros_processes, proc, executor, spin, publish, text, ti
         except AssertionError:
             assert proc.poll() is None, 'detector died'
     return None
-
-
-@pytest.fixture
-def tester(rclpy_context):
-    node = rclpy.create_node('perception_tester', context=rclpy_context)
-    executor = SingleThreadedExecutor(context=rclpy_context)
-    executor.add_node(node)
-    yield node, executor
-    executor.shutdown()
-    node.destroy_node()
 
 
 def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):

@@ -118,11 +118,14 @@ cleanup() {
   trap '' INT TERM
   if [ ${#pids[@]} -gt 0 ]; then
     echo "[start_graph] stopping ${#pids[@]} processes"
+    # SIGINT first (the client cancels its goal on it); SIGTERM after 2 s for a process
+    # that inherited SIGINT ignored (started in the background of a non-interactive shell).
     kill -INT "${pids[@]}" 2>/dev/null || true
-    for _ in $(seq 50); do
+    for tick in $(seq 50); do
       alive=0
       for pid in "${pids[@]}"; do kill -0 "$pid" 2>/dev/null && alive=1; done
       [ "$alive" = 0 ] && break
+      [ "$tick" = 20 ] && { kill -TERM "${pids[@]}" 2>/dev/null || true; }
       sleep 0.1
     done
     # A supervisor killed outright would leave its node behind: the nodes go first.
@@ -141,7 +144,8 @@ trap 'exit 130' INT TERM
 supervise() {
   local name="$1" log="$2"; shift 2
   local child="" stopping=0 quick_deaths=0 restarts=0 rc started
-  trap 'stopping=1; [ -n "$child" ] && kill -INT "$child" 2>/dev/null' INT TERM
+  trap 'stopping=1; [ -n "$child" ] && kill -INT "$child" 2>/dev/null' INT
+  trap 'stopping=1; [ -n "$child" ] && kill -TERM "$child" 2>/dev/null' TERM
   while true; do
     started=$SECONDS
     "$@" >> "$log" 2>&1 &

@@ -156,12 +156,21 @@ class Graph:
         with self._lock:
             return '\n'.join(self.lines[-count:])
 
-    def stop(self, timeout=60.0):
-        """Ctrl-C to start_graph.sh (its trap stops every node); True if it ended in time."""
+    def stop(self, timeout=60.0, int_grace=5.0):
+        """Ctrl-C to start_graph.sh (its trap stops every node); True if it ended in time.
+
+        SIGTERM follows if SIGINT did not end it within `int_grace` s: a shell started in
+        the background of a non-interactive shell (a CI runner, `cmd &` in a script)
+        inherits SIGINT ignored, and bash cannot trap a signal ignored on entry."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)
         try:
-            self.proc.wait(timeout=timeout)
+            self.proc.wait(timeout=int_grace)
+            return True
+        except subprocess.TimeoutExpired:
+            self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(timeout=timeout - int_grace)
             return True
         except subprocess.TimeoutExpired:
             os.killpg(self.proc.pid, signal.SIGKILL)

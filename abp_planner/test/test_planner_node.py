@@ -77,10 +77,17 @@ def send_goal(executor, action_client, spin, answering, goal, feedback=None):
     return handle
 
 
-def recognize(executor, action_client, spin, answering, goal, feedback=None, timeout=120):
+def recognize(executor, action_client, spin, answering, goal, feedback=None, timeout=120,
+              executed=None, plans=None):
+    """The goal's result, once the `executed` actions and `plans` seen on their topics
+    number its actions_taken: DDS keeps no order between a topic and the action's result,
+    so the last action's messages can arrive after the result."""
     result = send_goal(executor, action_client, spin, answering, goal,
                        feedback).get_result_async()
     assert spin(executor, result.done, timeout), 'recognition did not finish'
+    taken = result.result().result.actions_taken
+    spin(executor, lambda: all(len(seen) >= taken for seen in (executed, plans)
+                               if seen is not None), 10)
     return result.result()
 
 
@@ -91,7 +98,8 @@ def test_recognize_identifies_the_true_model(ros_processes, client, spin, answer
     feedback = []
     response = recognize(executor, action_client, spin, answering,
                          Recognize.Goal(planner_mode='abp', max_actions=30,
-                                        posterior_threshold=0.99), feedback)
+                                        posterior_threshold=0.99), feedback,
+                         executed=executed, plans=plans)
     models = robot_set(seed=SEED)
     assert response.status == GoalStatus.STATUS_SUCCEEDED
     assert response.result.success, response.result.reason
@@ -118,7 +126,7 @@ def test_failed_skill_is_replanned_and_infeasible_one_skipped(ros_processes, cli
     start_graph(ros_processes, twin, fail_action='LIFT', infeasible='FLIP')
     response = recognize(executor, action_client, spin, answering,
                          Recognize.Goal(planner_mode='abp', max_actions=30,
-                                        posterior_threshold=0.99))
+                                        posterior_threshold=0.99), executed=executed)
     actions = [e.action for e in executed]
     assert 'FLIP' not in actions
     failed = [e for e in executed if not e.success]

@@ -393,13 +393,6 @@ class LearnedTables:
         return states, p, np.where(p > 0, c, 0.0)
 
 
-def robot_fault_rates(params: TransitionParams | None = None) -> dict:
-    """The robot's own failure rates of the manual actions (`p_fail_*` of the model set's
-    TransitionParams, the hand-written table's failure model), per action name."""
-    p = params or TransitionParams()
-    return {'PUSH': p.p_fail_push, 'LIFT': p.p_fail_lift, 'FLIP': p.p_fail_flip}
-
-
 def with_contact_faults(probs: np.ndarray, fault_rates: dict) -> np.ndarray:
     """(8, 7, 48, 48) rows with each manual action's `fault_rates[action]` of 'no change'
     mixed in: p' = (1 - f) p + f * [next == state].
@@ -433,7 +426,7 @@ def learn(experience: Experience, alpha: float = DEFAULT_ALPHA, prior: str = 'ta
 
     alpha = 0 gives the empirical frequencies where a cell has data (and the prior mean
     where it has none): the 'survey table' a world can be drawn from. `fault_rates`
-    (action name -> rate, e.g. `robot_fault_rates()`): the robot's contact faults mixed
+    (action name -> rate, e.g. `TransitionParams().fail_rates()`): the robot's contact faults mixed
     into the learned rows (`with_contact_faults`); None or {} for experience that already
     holds them (the robot's own bags)."""
     if not (np.isfinite(alpha) and alpha >= 0):

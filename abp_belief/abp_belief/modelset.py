@@ -41,6 +41,10 @@ class TransitionParams:
         if self.p_fail_push + self.p_push_neighbour >= 1.0:
             raise ValueError('TransitionParams: p_fail_push + p_push_neighbour must be < 1')
 
+    def fail_rates(self) -> dict:
+        """Manual action name -> probability that it fails and nothing changes."""
+        return {'PUSH': self.p_fail_push, 'LIFT': self.p_fail_lift, 'FLIP': self.p_fail_flip}
+
 
 class PairGaussians(NamedTuple):
     """Inter-feature distance Gaussians of one aspect (all feature pairs i < j)."""
@@ -72,7 +76,7 @@ def build_outcome_tables(params: TransitionParams | None = None):
     states = np.empty(shape, dtype=np.int16)
     probs = np.zeros(shape, dtype=np.float64)
     states[:] = np.arange(STATES_PER_MODEL, dtype=np.int16)[None, None, :, None]
-    fail = {'PUSH': p.p_fail_push, 'LIFT': p.p_fail_lift, 'FLIP': p.p_fail_flip}
+    fail = p.fail_rates()
     eye = np.eye(3)
     for a, name in enumerate(ACTIONS):
         for m in range(NUM_MASS_VARIANTS):

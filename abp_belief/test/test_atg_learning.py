@@ -9,6 +9,7 @@ from abp_belief import atg_learning as L
 from abp_belief import cube, model_file, population
 from abp_belief.cube import ACTIONS, STATES_PER_MODEL, apply_rotation
 from abp_belief.learn_atg_cli import main as learn_atg
+from abp_belief.modelset import TransitionParams
 
 PUSH, LIFT, FLIP = (ACTIONS.index(a) for a in ('PUSH', 'LIFT', 'FLIP'))
 
@@ -208,7 +209,7 @@ def test_contact_faults_mix_no_change_into_manual_rows_only():
     assert rolled != s
     experience = _experience([[LIFT, m, s, rolled]] * 20)
     plain = L.learn(experience, alpha=2.0)
-    faulty = L.learn(experience, alpha=2.0, fault_rates=L.robot_fault_rates())
+    faulty = L.learn(experience, alpha=2.0, fault_rates=TransitionParams().fail_rates())
     assert plain.probs[LIFT, m, s, s] < 0.02                     # the prior's sliver only
     assert faulty.probs[LIFT, m, s, s] == pytest.approx(0.1 + 0.9 * plain.probs[LIFT, m, s, s])
     assert faulty.probs[LIFT, m, s, rolled] == pytest.approx(0.9 * plain.probs[LIFT, m, s, rolled])

@@ -430,17 +430,23 @@ def _bucket_row(name, sel):
             f"| {_q([r['rot_ours'] for r in sel], 95)} / {_q([r['rot_cv'] for r in sel], 95)} |")
 
 
+def _by_condition(rows, frames):
+    """(condition, its tag rows, its frames) for each condition with frames, then for
+    'every condition'."""
+    for cond in CONDITIONS + ('every condition',):
+        sel = [r for r in rows if cond == 'every condition' or r['condition'] == cond]
+        fr = [f for f in frames if cond == 'every condition' or f['condition'] == cond]
+        if fr:
+            yield cond, sel, fr
+
+
 def condition_table(rows, frames):
     out = ['| condition | frames | tags | recall ours | recall OpenCV '
            '| recall ≤ 1.5 m ours / OpenCV | wrong detections ours / OpenCV '
            '| position error median ours / OpenCV (mm) '
            '| rotation p95 ours / OpenCV (°) | CPU median ours / OpenCV (ms) | ratio |',
            '|---|---|---|---|---|---|---|---|---|---|---|']
-    for cond in CONDITIONS + ('every condition',):
-        sel = [r for r in rows if cond == 'every condition' or r['condition'] == cond]
-        fr = [f for f in frames if cond == 'every condition' or f['condition'] == cond]
-        if not fr:
-            continue
+    for cond, sel, fr in _by_condition(rows, frames):
         near = [r for r in sel if r['distance'] < 1.5]
         worse = sum(r['ours'] for r in sel) < sum(r['cv'] for r in sel)
         co, cc = (1e3 * float(np.median([f[k] for f in fr])) for k in ('cpu_ours', 'cpu_cv'))
@@ -462,11 +468,7 @@ def region_table(rows, frames, full_frame_every=5):
            f'OpenCV (ms) | RegionSearch(full_frame_every={full_frame_every}): mean CPU '
            '(ms), ratio to OpenCV | area searched (median, % of the image) |',
            '|---|---|---|---|---|']
-    for cond in CONDITIONS + ('every condition',):
-        sel = [r for r in rows if cond == 'every condition' or r['condition'] == cond]
-        fr = [f for f in frames if cond == 'every condition' or f['condition'] == cond]
-        if not fr:
-            continue
+    for cond, sel, fr in _by_condition(rows, frames):
         full, region, cv = (1e3 * np.array([f[k] for f in fr])
                             for k in ('cpu_ours', 'cpu_region', 'cpu_cv'))
         mix = (full + (full_frame_every - 1) * region) / full_frame_every

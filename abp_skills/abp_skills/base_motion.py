@@ -231,8 +231,20 @@ class OrbitTracker:
     position_tolerance: float = 0.02
     settle_time: float = 4.0
     # Settling state: driving to the end point, and the settling time added for that.
+    # Longest step of plan time between two commands. A starved control loop (a loaded
+    # machine, a simulation faster than real time) leaves the base on its last command
+    # or, after the base's command timeout, standing still, while the clock runs on: the
+    # plan pauses for the excess, so that the reference does not run away from the base.
+    max_step: float = 0.25
     _repositioning: bool = field(default=False, init=False, repr=False)
     _extra_settle_time: float = field(default=0.0, init=False, repr=False)
+    _last_t: float = field(default=None, init=False, repr=False)
+    _plan_t: float = field(default=0.0, init=False, repr=False)
+
+    @property
+    def plan_time(self):
+        """Plan time (s) of the last command: t less the pauses of a starved loop."""
+        return self._plan_t
 
     @property
     def settle_deadline(self):
@@ -260,7 +272,14 @@ class OrbitTracker:
 
     def command(self, t, pose):
         """(v, ω, phase, done, ok): velocity command at time t for the measured pose;
-        done once past the plan and settled (ok) or out of settling time (not ok)."""
+        done once past the plan and settled (ok) or out of settling time (not ok).
+        Plan time follows t in steps of at most `max_step` (`plan_time`)."""
+        if self._last_t is not None:
+            self._plan_t += min(max(t - self._last_t, 0.0), self.max_step)
+        else:
+            self._plan_t = t
+        self._last_t = t
+        t = self._plan_t
         _, v_ref, w_ref, phase = self.plan.reference(t)
         if t >= self.plan.duration:
             if self.settled(pose):

@@ -170,8 +170,9 @@ class SkillActionServers:
                 q = node.state.latest_joints()
                 node.commands.aim_head(q if q is not None else head_q[0], cube_base)
             if feedback.due(t):
+                done_s = min(tracker.plan_time, plan.duration)
                 self._feedback(skill, goal_handle, phase,
-                               progress_of(min(t, plan.duration) / max(plan.duration, 1e-6)))
+                               progress_of(done_s / max(plan.duration, 1e-6)))
             self._sleep_period()
 
     def _move(self, skill, goal_handle, started, name, trajectory, progress_of, limit_s=None):

@@ -95,6 +95,32 @@ def test_orbit_tracker_closes_the_loop_on_odometry(angle_deg):
     assert t < plan.duration + tracker.settle_time
 
 
+@pytest.mark.parametrize('angle_deg', [45, -90, 180])
+def test_orbit_tracker_survives_a_starved_control_loop(angle_deg):
+    """Commands 0.75-2.25 s apart (a loaded machine at a 10x simulation: 75-225 ms of wall
+    time), each held by the base for at most 0.5 s (its command timeout), on odometry read
+    half-way through that hold: the plan pauses instead of running away from the base, and
+    the orbit still ends within tolerance. (A plan on the raw clock ended 20-180 deg off.)"""
+    rng = np.random.default_rng(abs(angle_deg))
+    cube = np.array([0.4, 0.0])
+    plan = plan_orbit(np.zeros(3), cube, np.radians(angle_deg), 0.4)
+    tracker = OrbitTracker(plan)
+    pose, seen, t, hold, tick = np.zeros(3), np.zeros(3), 0.0, 0.5, 0.01
+    while True:
+        v, w, _, done, ok = tracker.command(t, seen)
+        if done:
+            break
+        period = rng.uniform(0.75, 2.25)
+        ticks = int(round(min(period, hold) / tick))
+        for k in range(ticks):
+            pose = integrate_twist(pose, v, w, tick)
+            if k == ticks // 2:
+                seen = pose.copy()
+        t += period
+    assert ok, np.degrees(tracker.final_errors(pose))
+    assert tracker.plan_time < t   # the plan paused
+
+
 def test_orbit_tracker_reports_a_base_that_does_not_move():
     plan = plan_orbit(np.zeros(3), np.array([0.4, 0.0]), np.radians(45), 0.4)
     tracker = OrbitTracker(plan, settle_time=1.0)

@@ -29,6 +29,7 @@ setup(
             'mujoco_benchmark = abp_bench.mujoco_benchmark:main',
             'atg_learning_curve = abp_bench.atg_learning_curve:main',
             'soak = abp_bench.soak:main',
+            'transport_benchmark = abp_bench.transport_benchmark:main',
         ],
     },
 )

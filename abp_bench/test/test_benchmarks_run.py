@@ -60,3 +60,12 @@ def test_graph_benchmark_summary_table():
     assert '| hung (no result within the timeout) | 1 |' in table
     assert '| mean actions | 4.00 |' in table
     assert 'mujoco world, robot models, planner cost, without fault injection' in table
+
+
+def test_transport_benchmark(capsys):
+    from abp_bench import transport_benchmark
+    assert transport_benchmark.main(['--frames', '2']) == 0
+    out = capsys.readouterr().out
+    assert '| JPEG q80 CompressedImage |' in out and 'Tags found on the raw frames' in out
+    with pytest.raises(SystemExit):
+        transport_benchmark.main(['--quality', '0'])

@@ -16,8 +16,9 @@ from the face plane.
   (the estimate's error) from swinging about the hand axis.
 - FLIP: as LIFT but the contacts are `flip_grasp_offset` towards the robot from the face
   centres (inside the third of the face nearest the robot), squeezing only `flip_squeeze`
-  (at an odd yaw the hands meet the two front faces at 45°; a light squeeze lets that
-  wedge slip rather than carry the cube through the roll); the stroke rolls the hands up
+  (at an odd yaw the hands meet the two front faces at 45°, and pads with a friction
+  coefficient above 1 jam in that wedge; a light squeeze lets it slip rather than carry
+  the cube through the roll; the roll itself needs little grip); the stroke rolls the hands up
   by `flip_up` and back towards the robot by `flip_back` along a quarter ellipse, then
   lowers them straight down and lets go: the cube is set down where the roll left it.
 - ORBIT: `base_motion.plan_orbit` for the base; feasibility here (radius, clearance).
@@ -82,7 +83,7 @@ class SkillConfig:
     # How far the grasps press into the faces: the position-servoed arms' grip force.
     # (The URDF's pads are 0.035 m balls, so they are commanded 5 mm further in still.)
     grasp_squeeze: float = 0.015       # m, LIFT
-    flip_squeeze: float = 0.005        # m, FLIP
+    flip_squeeze: float = 0.0          # m, FLIP: a light grip (see the module doc)
     approach_gap: float = 0.05         # m, free space between a hand and a face before contact
     hover_height: float = 0.08         # m, via point above the pre-contact posture
     push_hand: str = 'right'

@@ -11,10 +11,16 @@ from the face plane.
   centre (stroke), back off and go home (retreat).
 - LIFT: both hands beside the ±y_V faces at their centres, close in (contact, squeezing
   `grasp_squeeze`), raise by `lift_height` and lower again (stroke), open and go home.
+  The squeeze is the grip force of the position-servoed arms: the pads' torsional
+  friction, proportional to it, is what keeps a cube gripped off its centre of mass
+  (the estimate's error) from swinging about the hand axis.
 - FLIP: as LIFT but the contacts are `flip_grasp_offset` towards the robot from the face
-  centres (inside the third of the face nearest the robot); the stroke rolls the hands up
+  centres (inside the third of the face nearest the robot), squeezing only `flip_squeeze`
+  (at an odd yaw the hands meet the two front faces at 45°, and pads with a friction
+  coefficient above 1 jam in that wedge; a light squeeze lets it slip rather than carry
+  the cube through the roll; the roll itself needs little grip); the stroke rolls the hands up
   by `flip_up` and back towards the robot by `flip_back` along a quarter ellipse, then
-  puts the cube down where it stood.
+  lowers them straight down and lets go: the cube is set down where the roll left it.
 - ORBIT: `base_motion.plan_orbit` for the base; feasibility here (radius, clearance).
 
 Free motions are joint-space Ruckig segments; contact, stroke and release moves are
@@ -74,7 +80,10 @@ class SkillConfig:
     support_height: float = 0.0        # m, height of the surface under the cube in base_link
     use_estimated_height: bool = False  # True: take the cube's z from the estimate
     hand_radius: float = 0.03          # m, contact ball of a hand
-    grasp_squeeze: float = 0.005       # m, the grasp presses this far into the faces
+    # How far the grasps press into the faces: the position-servoed arms' grip force.
+    # (The URDF's pads are 0.035 m balls, so they are commanded 5 mm further in still.)
+    grasp_squeeze: float = 0.015       # m, LIFT
+    flip_squeeze: float = 0.0          # m, FLIP: a light grip (see the module doc)
     approach_gap: float = 0.05         # m, free space between a hand and a face before contact
     hover_height: float = 0.08         # m, via point above the pre-contact posture
     push_hand: str = 'right'
@@ -117,8 +126,9 @@ class SkillConfig:
             raise ValueError('check_stride and feasibility_check_stride must be >= 1')
         if self.push_hand not in SIDES:
             raise ValueError(f"push_hand must be 'left' or 'right', got {self.push_hand!r}")
-        if not 0 <= self.grasp_squeeze < self.hand_radius:
-            raise ValueError('grasp_squeeze must be in [0, hand_radius)')
+        for name in ('grasp_squeeze', 'flip_squeeze'):
+            if not 0 <= getattr(self, name) < self.hand_radius:
+                raise ValueError(f'{name} must be in [0, hand_radius)')
         if not 0 <= self.flip_grasp_offset < self.cube_size / 2:
             raise ValueError('flip_grasp_offset must be in [0, cube_size / 2)')
         if self.joint_velocity_scale > 1:
@@ -162,11 +172,14 @@ class CubeFrame:
         """A point given in V coordinates (origin at the cube centre), in base_link."""
         return self.centre + vx * self.x + vy * self.y + np.array([0.0, 0.0, vz])
 
-    def box(self, grow=0.0):
+    def box(self, grow=0.0, squeeze_y=0.0):
+        """The cube as a Box, grown by `grow` and narrowed by `squeeze_y` along y_V."""
         pose = np.eye(4)
         pose[:3, 0], pose[:3, 1], pose[:3, 2] = self.x, self.y, (0.0, 0.0, 1.0)
         pose[:3, 3] = self.centre
-        return Box('cube', pose, np.full(3, self.half + grow))
+        half = np.full(3, self.half + grow)
+        half[1] -= squeeze_y
+        return Box('cube', pose, half)
 
 
 @dataclass
@@ -404,16 +417,16 @@ class SkillPlanner:
         result = self.ik.solve({s: pos[s] + [0.0, 0.0, dz] for s in sides}, q, q_rest=q)
         return result.q if result.success else q
 
-    def _grasp_points(self, cube, along_x):
+    def _grasp_points(self, cube, along_x, squeeze):
         """Hand centres on the robot's left (-y_V) and right (+y_V) faces."""
         cfg = self.config
-        w = cube.half + cfg.hand_radius - cfg.grasp_squeeze
+        w = cube.half + cfg.hand_radius - squeeze
         return {'left': cube.point(along_x, -w, 0.0), 'right': cube.point(along_x, w, 0.0)}
 
-    def _two_hand_approach(self, q0, cube, along_x):
+    def _two_hand_approach(self, q0, cube, along_x, squeeze):
         cfg = self.config
-        grasp = self._grasp_points(cube, along_x)
-        opened = {s: p + (cfg.approach_gap + cfg.grasp_squeeze) * (cube.y if s == 'right'
+        grasp = self._grasp_points(cube, along_x, squeeze)
+        opened = {s: p + (cfg.approach_gap + squeeze) * (cube.y if s == 'right'
                                                                     else -cube.y)
                   for s, p in grasp.items()}
         hover = {s: p + [0.0, 0.0, cfg.hover_height] for s, p in opened.items()}
@@ -429,10 +442,17 @@ class SkillPlanner:
         q_grasp = self._full(close.end, q_open)
         return approach, Phase('contact', close), q_grasp, grasp, opened, hover
 
-    def _release(self, q_from, cube, held, q0, look, what='release'):
+    @staticmethod
+    def _grasp_obstacle(cube, squeeze):
+        """The cube as the closing hands' arms meet it: the squeeze is a force set-point,
+        the balls stop at the ±y faces and each arm stays `squeeze` further out than
+        commanded, so the arms' clearance is checked against a cube that much narrower."""
+        return cube.box(squeeze_y=squeeze)
+
+    def _release(self, q_from, cube, held, q0, look, squeeze, what='release'):
         """Open the hands sideways from `held` ({side: xyz}), lift them, go home."""
         cfg = self.config
-        opened = {s: p + (cfg.approach_gap + cfg.grasp_squeeze) * (cube.y if s == 'right'
+        opened = {s: p + (cfg.approach_gap + squeeze) * (cube.y if s == 'right'
                                                                     else -cube.y)
                   for s, p in held.items()}
         open_t = self._path_move(q_from, {s: np.array([held[s], opened[s]]) for s in SIDES},
@@ -444,7 +464,8 @@ class SkillPlanner:
 
     def _plan_lift(self, q0, cube):
         cfg = self.config
-        approach, contact, q_grasp, grasp, _, _ = self._two_hand_approach(q0, cube, 0.0)
+        approach, contact, q_grasp, grasp, _, _ = self._two_hand_approach(
+            q0, cube, 0.0, cfg.grasp_squeeze)
         up = {s: p + [0.0, 0.0, cfg.lift_height] for s, p in grasp.items()}
         raise_t = self._path_move(q_grasp, {s: np.array([grasp[s], up[s]]) for s in SIDES},
                                   'lift')
@@ -453,11 +474,12 @@ class SkillPlanner:
                                   'place')
         q_down = self._full(lower_t.end, q_grasp)
         stroke = Phase('stroke', SampledTrajectory.concat([raise_t, lower_t]))
-        retreat = self._release(q_down, cube, grasp, q0, cube.centre)
+        retreat = self._release(q_down, cube, grasp, q0, cube.centre, cfg.grasp_squeeze)
         phases = [approach, contact, stroke, retreat]
         obstacles = [cube.box()]
         self._check(approach, q0, obstacles)
-        self._check(contact, q0, obstacles, touching=SIDES)
+        self._check(contact, q0, [self._grasp_obstacle(cube, cfg.grasp_squeeze)],
+                    touching=SIDES)
         self._check(stroke, q0)
         self._check(retreat, q0)
         return SkillPlan('lift', True, '', phases,
@@ -466,7 +488,7 @@ class SkillPlanner:
     def _plan_flip(self, q0, cube):
         cfg = self.config
         approach, contact, q_grasp, grasp, _, _ = self._two_hand_approach(
-            q0, cube, cfg.flip_grasp_offset)
+            q0, cube, cfg.flip_grasp_offset, cfg.flip_squeeze)
         roll = np.radians(cfg.flip_roll_deg)
         phi = np.linspace(0.0, roll, 19)
         frac_up = np.sin(phi) / max(np.sin(min(roll, np.pi / 2)), 1e-9)
@@ -478,18 +500,21 @@ class SkillPlanner:
         roll_t = self._path_move(q_grasp, roll_paths, 'roll')
         q_rolled = self._full(roll_t.end, q_grasp)
         rolled = {s: roll_paths[s][-1] for s in SIDES}
-        # Put it down where it stood (the roll is what turns it; the sim bridge keeps the
-        # hands' horizontal offset at release, so this keeps the cube in place).
-        placed = grasp
+        # Put it down straight below where the roll left it. Carrying it forward again as
+        # it lands pushes the top of a rolled cube on past its quarter turn (towards a
+        # half turn) and tips over a cube held without turning (wedged between the hands
+        # at an odd yaw); lowered vertically, each lands on the face it hangs on.
+        placed = {s: p + cfg.flip_back * cube.x for s, p in grasp.items()}
         place_t = self._path_move(q_rolled, {s: np.array([rolled[s], placed[s]])
                                              for s in SIDES}, 'put down')
         q_placed = self._full(place_t.end, q_grasp)
         stroke = Phase('stroke', SampledTrajectory.concat([roll_t, place_t]))
-        retreat = self._release(q_placed, cube, placed, q0, cube.centre)
+        retreat = self._release(q_placed, cube, placed, q0, cube.centre, cfg.flip_squeeze)
         phases = [approach, contact, stroke, retreat]
         obstacles = [cube.box()]
         self._check(approach, q0, obstacles)
-        self._check(contact, q0, obstacles, touching=SIDES)
+        self._check(contact, q0, [self._grasp_obstacle(cube, cfg.flip_squeeze)],
+                    touching=SIDES)
         self._check(stroke, q0)
         self._check(retreat, q0)
         return SkillPlan('flip', True, '', phases,

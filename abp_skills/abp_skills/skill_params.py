@@ -56,7 +56,8 @@ CONFIG_DESCRIPTIONS = {
     'use_estimated_height': 'Take the cube centre height from the estimate (else '
                             'support_height + cube_size / 2).',
     'hand_radius': "m, radius of the hands' contact balls (sim bridge: 0.03).",
-    'grasp_squeeze': 'm, how far a grasp presses into the faces.',
+    'grasp_squeeze': "m, how far LIFT's grasp presses into the faces (sets the grip force).",
+    'flip_squeeze': "m, how far FLIP's grasp presses into the faces.",
     'approach_gap': 'm, free space between hand and face before contact and after release.',
     'hover_height': 'm, via point above the pre-contact posture.',
     'push_hand': 'Hand that pushes: left or right.',

@@ -94,10 +94,13 @@ def test_lift_grasps_the_side_faces_near_the_centre_and_raises(kin, planner, hom
     r, squeeze = planner.config.hand_radius, planner.config.grasp_squeeze
     grasp = {s: p[-1] for s, p in hand_path(kin, planner, home,
                                             plan.phases[1].trajectory).items()}
+    # A firm grip: the pads' torsional friction (proportional to the squeeze's force) is
+    # what keeps a cube gripped a centimetre off its centre from swinging when raised.
+    assert squeeze >= 0.01
     for side, sign in (('left', 1), ('right', -1)):
-        # The ball is within 1 cm of its face plane, over the face centre.
+        # The ball is commanded `squeeze` into its face plane, over the face centre.
         gap = sign * grasp[side][1] - H - r
-        assert -0.01 <= gap <= 0.01 and gap == pytest.approx(-squeeze, abs=2.5e-3)
+        assert gap == pytest.approx(-squeeze, abs=2.5e-3)
         assert abs(grasp[side][0] - CUBE[0]) < 0.01 and abs(grasp[side][2] - CUBE[2]) < 0.01
     stroke = hand_path(kin, planner, home, plan.phases[2].trajectory)
     for side in ('left', 'right'):
@@ -114,8 +117,12 @@ def test_flip_grasps_near_the_robot_edge_and_rolls_up_and_back(kin, planner, hom
     r = planner.config.hand_radius
     grasp = {s: p[-1] for s, p in hand_path(kin, planner, home,
                                             plan.phases[1].trajectory).items()}
+    # A light squeeze (at an odd yaw the hands wedge the two front faces; a firm grip
+    # there would carry the cube through the roll).
+    assert planner.config.flip_squeeze < planner.config.grasp_squeeze
     for side, sign in (('left', 1), ('right', -1)):
-        assert abs(sign * grasp[side][1] - H - r) <= 0.01
+        gap = sign * grasp[side][1] - H - r
+        assert gap == pytest.approx(-planner.config.flip_squeeze, abs=2.5e-3)
         # Within the third of the face closest to the robot (x towards the robot).
         assert CUBE[0] - H <= grasp[side][0] <= CUBE[0] - H / 3
     stroke = hand_path(kin, planner, home, plan.phases[2].trajectory)
@@ -125,6 +132,22 @@ def test_flip_grasps_near_the_robot_edge_and_rolls_up_and_back(kin, planner, hom
         assert up >= 0.05 and back >= 0.05
         # Up first, back towards the robot on the way (the roll), never away from it.
         assert np.all(stroke[side][:, 0] <= grasp[side][0] + 2.5e-3)
+        # Then straight down where the roll ended, to the grasp height: not carried
+        # forward again as it lands.
+        top = int(np.argmax(stroke[side][:, 2]))
+        lowering = stroke[side][top:]
+        assert np.ptp(lowering[:, 0]) <= 0.01
+        assert lowering[-1, 2] == pytest.approx(grasp[side][2], abs=2.5e-3)
+
+
+def test_grasp_clearance_is_checked_where_the_squeezing_hands_stop(planner):
+    """The squeeze is a force set-point: the balls stop at the ±y faces, so the arms'
+    clearance is checked against the cube narrowed by the squeeze along y_V only."""
+    cube = planner.cube_frame(CUBE)
+    box = planner._grasp_obstacle(cube, 0.015)
+    np.testing.assert_allclose(box.half, [H, H - 0.015, H])
+    assert box.distance(np.array([CUBE + 0.8 * H * cube.y]))[0] > 0
+    assert box.distance(np.array([CUBE + 0.8 * H * cube.x]))[0] == 0
 
 
 def test_plans_are_checked_for_self_collision(kin, planner, home, plans):
@@ -183,6 +206,9 @@ def test_goal_overrides_and_config_validation(planner, home):
         SkillConfig(push_hand='middle').validate()
     with pytest.raises(ValueError, match='flip_grasp_offset'):
         SkillConfig(flip_grasp_offset=0.2).validate()
+    for name in ('grasp_squeeze', 'flip_squeeze'):
+        with pytest.raises(ValueError, match=name):
+            SkillConfig(**{name: 0.03}).validate()
     left = planner.with_config(push_hand='left').plan('push', home, CUBE)
     assert left.ok, left.reason
 

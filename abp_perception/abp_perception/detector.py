@@ -84,6 +84,7 @@ import cv2
 import numpy as np
 
 from .corners import decode_quads, quad_areas, refine_quads
+from .face_search import adjacent_face_boxes, blur_tolerant_parameters
 from .rigid_cube import fit_cubes
 
 __all__ = [
@@ -122,6 +123,10 @@ _POSITION_FLOOR = 1e-4       # m
 # sees 2-3 px per cell; 40 / side^2 px (0.16 px at 16 px) matches the renders' errors.
 SMALL_TAG_PX2 = 40.0
 MAX_CANDIDATES = 24          # rejected contours re-examined per image (largest first)
+# Face search (``face_search``): quads kept per image, and their perimeter against the
+# predicted tag's (pose errors, foreshortening the prediction misses).
+MAX_FACE_CANDIDATES = 12
+FACE_SIDE_RANGE = (0.5, 1.6)
 _ROTATION_FLOOR = 1e-3       # rad
 # Best IPPE_SQUARE reprojection error (px) above which SQPNP and ITERATIVE are tried too
 # (module docstring). Good detections on the renders stay well below it.
@@ -364,11 +369,13 @@ class DetectionResult:
     second_pass: int = 0           # detections recovered from rejected candidates
     cubes: list = field(default_factory=list)   # rigid_cube.CubePose, >= 2 tags each
     roi: list = None               # [(x0, y0, x1, y1) px] searched; None: the whole image
+    face_search: int = 0           # detections found on the found tags' cube faces
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
         return DetectionResult([d.transformed(transform, frame) for d in self.detections],
                                list(self.dropped), self.second_pass,
-                               [c.transformed(transform, frame) for c in self.cubes], self.roi)
+                               [c.transformed(transform, frame) for c in self.cubes], self.roi,
+                               self.face_search)
 
 
 def _inside_any(points, quads) -> np.ndarray:
@@ -525,7 +532,7 @@ class TagDetector:
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
-                 image_size=None, cube_size: float | None = 0.10):
+                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -553,6 +560,10 @@ class TagDetector:
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
         self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
+        # Face search (module face_search): needs the cube geometry.
+        self.face_search = bool(face_search) and self.cube_size > 0
+        self.face_params = blur_tolerant_parameters(self.params)
+        self.face_aruco = cv2.aruco.ArucoDetector(self.dictionary, self.face_params)
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
@@ -657,8 +668,64 @@ class TagDetector:
                 dropped.append(det)
             else:
                 detections.append(det)
+        on_faces = self._search_faces(gray, detections) if self.face_search else []
+        detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
-        return DetectionResult(detections, dropped, recovered, cubes, roi)
+        return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces))
+
+    def _search_faces(self, gray, detections):
+        """Detections on the cube faces next to found tags that should show a tag and hold
+        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag),
+        searched with ``blur_tolerant_parameters`` and perimeter limits from the predicted
+        tag size, then refined and decoded as in the second pass."""
+        if not detections:
+            return []
+        boxes = adjacent_face_boxes(
+            np.concatenate([d.candidates for d in detections]),
+            np.array([d.pose[:3, 3] for d in detections]), self.camera_matrix,
+            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape)
+        boxes = boxes[boxes[:, 4] >= self.min_side_px]
+        if not len(boxes):
+            return []
+        regions = clip_regions(boxes[:, :4], gray.shape) or [(0, 0, gray.shape[1],
+                                                               gray.shape[0])]
+        box_centres = 0.5 * (boxes[:, :2] + boxes[:, 2:4])
+        cand = []
+        for x0, y0, x1, y1 in regions:
+            inside = ((box_centres >= (x0, y0)) & (box_centres <= (x1, y1))).all(axis=1)
+            sides = boxes[inside, 4] if inside.any() else boxes[:, 4]
+            # ArUco's perimeter limits are rates of the crop's larger side: only quads of
+            # about the predicted size get decoded (clutter in the crop costs little).
+            longest = float(max(x1 - x0, y1 - y0))
+            self.face_params.minMarkerPerimeterRate = 4 * FACE_SIDE_RANGE[0] * sides.min() / longest
+            self.face_params.maxMarkerPerimeterRate = 4 * FACE_SIDE_RANGE[1] * sides.max() / longest
+            self.face_aruco.setDetectorParameters(self.face_params)
+            found, _, rejected = self.face_aruco.detectMarkers(
+                np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            offset = np.array([x0, y0], dtype=np.float64)
+            cand += [q.reshape(4, 2) + offset for q in list(found) + list(rejected)]
+        if not cand:
+            return []
+        known = np.array([d.corners for d in detections], dtype=np.float64)
+        cand = np.array(cand, dtype=np.float64)
+        area = np.abs(quad_areas(cand))
+        keep = (area >= self.min_side_px ** 2) & ~_inside_any(cand.mean(axis=1), known)
+        idx = np.flatnonzero(keep)
+        idx = idx[np.argsort(-area[idx], kind='stable')][:MAX_FACE_CANDIDATES]
+        if not idx.size:
+            return []
+        refined, ok = refine_quads(gray, cand[idx])
+        if not ok.any():
+            return []
+        quads, ids = self._decode_candidates(gray, refined[ok])
+        out = []
+        for tag_id, quad in zip(ids, quads):
+            if _inside_any(quad.mean(axis=0)[None], known)[0]:
+                continue                                   # a found tag, another contour
+            det = self._pose(tag_id, quad)
+            if not isinstance(det, DroppedDetection):
+                out.append(det)
+        return out
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`

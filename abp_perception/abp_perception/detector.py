@@ -12,7 +12,7 @@ Pipeline per grey image (``TagDetector.detect``):
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
    (``corners.decode_quads``, no error correction, black border and white quiet zone
    required). Far, foreshortened tags are often rejected only because their integer
-   contour corners sample the bits badly.
+   contour corners sample the bits badly. At most ``MAX_CANDIDATES`` (16), largest first.
 4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
    points in its documented order (top-left, top-right, bottom-right, bottom-left at
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
@@ -30,6 +30,15 @@ Pipeline per grey image (``TagDetector.detect``):
    solution with the lowest reprojection error is used (``Detection.solver`` names it).
 5. Covariance and confidence (below). Degenerate or implausible detections are
    dropped with a reason (``DetectionResult.dropped``).
+   Face search (``face_search``, on when ``cube_size`` > 0): the cube faces next to each
+   found tag that face the camera (within 75 deg) and hold no found tag are predicted
+   from the tag's pose (``face_search.adjacent_face_boxes``; the mirrored IPPE pose too
+   when ambiguity > ``FACE_SEARCH_AMBIGUITY``), and only their boxes are searched again
+   with a looser polygon fit and narrower threshold windows
+   (``face_search.blur_tolerant_parameters``) and perimeter limits from the predicted
+   tag size; the quads are refined and decoded as in step 3 and get poses as in step 4
+   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and JPEG
+   round into contours of more than four vertices.
 6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
    distance apart are fitted as one rigid ARcube from all their corners, seeded by every
    IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
@@ -122,11 +131,16 @@ _POSITION_FLOOR = 1e-4       # m
 # Corner noise that grows as tags shrink: the edge fit of a marker only ~15 px across
 # sees 2-3 px per cell; 40 / side^2 px (0.16 px at 16 px) matches the renders' errors.
 SMALL_TAG_PX2 = 40.0
-MAX_CANDIDATES = 24          # rejected contours re-examined per image (largest first)
+# Rejected contours re-examined per image (largest first). 16, not 24: the face search
+# finds most tags the last 8 did, and the 1 ms they cost pays for it (issue 16).
+MAX_CANDIDATES = 16
 # Face search (``face_search``): quads kept per image, and their perimeter against the
 # predicted tag's (pose errors, foreshortening the prediction misses).
 MAX_FACE_CANDIDATES = 12
 FACE_SIDE_RANGE = (0.5, 1.6)
+# Best / second IPPE reprojection error above which the face search also trusts a tag's
+# mirrored pose (below it, the mirrored pose only adds boxes on faces with no tag).
+FACE_SEARCH_AMBIGUITY = 0.6
 _ROTATION_FLOOR = 1e-3       # rad
 # Best IPPE_SQUARE reprojection error (px) above which SQPNP and ITERATIVE are tried too
 # (module docstring). Good detections on the renders stay well below it.
@@ -680,8 +694,10 @@ class TagDetector:
         tag size, then refined and decoded as in the second pass."""
         if not detections:
             return []
+        # The mirrored IPPE pose too where it is nearly as good (it puts the faces elsewhere).
         boxes = adjacent_face_boxes(
-            np.concatenate([d.candidates for d in detections]),
+            np.concatenate([d.candidates if d.ambiguity > FACE_SEARCH_AMBIGUITY
+                            else d.candidates[:1] for d in detections]),
             np.array([d.pose[:3, 3] for d in detections]), self.camera_matrix,
             self.dist_coeffs, self.cube_size, self.marker_size, gray.shape)
         boxes = boxes[boxes[:, 4] >= self.min_side_px]
@@ -696,9 +712,9 @@ class TagDetector:
             sides = boxes[inside, 4] if inside.any() else boxes[:, 4]
             # ArUco's perimeter limits are rates of the crop's larger side: only quads of
             # about the predicted size get decoded (clutter in the crop costs little).
-            longest = float(max(x1 - x0, y1 - y0))
-            self.face_params.minMarkerPerimeterRate = 4 * FACE_SIDE_RANGE[0] * sides.min() / longest
-            self.face_params.maxMarkerPerimeterRate = 4 * FACE_SIDE_RANGE[1] * sides.max() / longest
+            rate = 4.0 / float(max(x1 - x0, y1 - y0))
+            self.face_params.minMarkerPerimeterRate = rate * FACE_SIDE_RANGE[0] * sides.min()
+            self.face_params.maxMarkerPerimeterRate = rate * FACE_SIDE_RANGE[1] * sides.max()
             self.face_aruco.setDetectorParameters(self.face_params)
             found, _, rejected = self.face_aruco.detectMarkers(
                 np.ascontiguousarray(gray[y0:y1, x0:x1]))

@@ -12,7 +12,7 @@ Pipeline per grey image (``TagDetector.detect``):
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
    (``corners.decode_quads``, no error correction, black border and white quiet zone
    required). Far, foreshortened tags are often rejected only because their integer
-   contour corners sample the bits badly.
+   contour corners sample the bits badly. At most ``MAX_CANDIDATES`` (16), largest first.
 4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
    points in its documented order (top-left, top-right, bottom-right, bottom-left at
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
@@ -30,6 +30,15 @@ Pipeline per grey image (``TagDetector.detect``):
    solution with the lowest reprojection error is used (``Detection.solver`` names it).
 5. Covariance and confidence (below). Degenerate or implausible detections are
    dropped with a reason (``DetectionResult.dropped``).
+   Face search (``face_search``, on when ``cube_size`` > 0): the cube faces next to each
+   found tag that face the camera (within 75 deg) and hold no found tag are predicted
+   from the tag's pose (``face_search.adjacent_face_boxes``; the mirrored IPPE pose too
+   when ambiguity > ``FACE_SEARCH_AMBIGUITY``), and only their boxes are searched again
+   with a looser polygon fit and narrower threshold windows
+   (``face_search.blur_tolerant_parameters``) and perimeter limits from the predicted
+   tag size; the quads are refined and decoded as in step 3 and get poses as in step 4
+   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and JPEG
+   round into contours of more than four vertices.
 6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
    distance apart are fitted as one rigid ARcube from all their corners, seeded by every
    IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
@@ -84,6 +93,7 @@ import cv2
 import numpy as np
 
 from .corners import decode_quads, quad_areas, refine_quads
+from .face_search import adjacent_face_boxes, blur_tolerant_parameters
 from .rigid_cube import fit_cubes
 
 __all__ = [
@@ -121,7 +131,16 @@ _POSITION_FLOOR = 1e-4       # m
 # Corner noise that grows as tags shrink: the edge fit of a marker only ~15 px across
 # sees 2-3 px per cell; 40 / side^2 px (0.16 px at 16 px) matches the renders' errors.
 SMALL_TAG_PX2 = 40.0
-MAX_CANDIDATES = 24          # rejected contours re-examined per image (largest first)
+# Rejected contours re-examined per image (largest first). 16, not 24: the face search
+# finds most tags the last 8 did, and the 1 ms they cost pays for it (issue 16).
+MAX_CANDIDATES = 16
+# Face search (``face_search``): quads kept per image, and their perimeter against the
+# predicted tag's (pose errors, foreshortening the prediction misses).
+MAX_FACE_CANDIDATES = 12
+FACE_SIDE_RANGE = (0.5, 1.6)
+# Best / second IPPE reprojection error above which the face search also trusts a tag's
+# mirrored pose (below it, the mirrored pose only adds boxes on faces with no tag).
+FACE_SEARCH_AMBIGUITY = 0.6
 _ROTATION_FLOOR = 1e-3       # rad
 # Best IPPE_SQUARE reprojection error (px) above which SQPNP and ITERATIVE are tried too
 # (module docstring). Good detections on the renders stay well below it.
@@ -364,11 +383,13 @@ class DetectionResult:
     second_pass: int = 0           # detections recovered from rejected candidates
     cubes: list = field(default_factory=list)   # rigid_cube.CubePose, >= 2 tags each
     roi: list = None               # [(x0, y0, x1, y1) px] searched; None: the whole image
+    face_search: int = 0           # detections found on the found tags' cube faces
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
         return DetectionResult([d.transformed(transform, frame) for d in self.detections],
                                list(self.dropped), self.second_pass,
-                               [c.transformed(transform, frame) for c in self.cubes], self.roi)
+                               [c.transformed(transform, frame) for c in self.cubes], self.roi,
+                               self.face_search)
 
 
 def _inside_any(points, quads) -> np.ndarray:
@@ -525,7 +546,7 @@ class TagDetector:
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
-                 image_size=None, cube_size: float | None = 0.10):
+                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -553,6 +574,10 @@ class TagDetector:
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
         self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
+        # Face search (module face_search): needs the cube geometry.
+        self.face_search = bool(face_search) and self.cube_size > 0
+        self.face_params = blur_tolerant_parameters(self.params)
+        self.face_aruco = cv2.aruco.ArucoDetector(self.dictionary, self.face_params)
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
@@ -657,8 +682,66 @@ class TagDetector:
                 dropped.append(det)
             else:
                 detections.append(det)
+        on_faces = self._search_faces(gray, detections) if self.face_search else []
+        detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
-        return DetectionResult(detections, dropped, recovered, cubes, roi)
+        return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces))
+
+    def _search_faces(self, gray, detections):
+        """Detections on the cube faces next to found tags that should show a tag and hold
+        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag),
+        searched with ``blur_tolerant_parameters`` and perimeter limits from the predicted
+        tag size, then refined and decoded as in the second pass."""
+        if not detections:
+            return []
+        # The mirrored IPPE pose too where it is nearly as good (it puts the faces elsewhere).
+        boxes = adjacent_face_boxes(
+            np.concatenate([d.candidates if d.ambiguity > FACE_SEARCH_AMBIGUITY
+                            else d.candidates[:1] for d in detections]),
+            np.array([d.pose[:3, 3] for d in detections]), self.camera_matrix,
+            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape)
+        boxes = boxes[boxes[:, 4] >= self.min_side_px]
+        if not len(boxes):
+            return []
+        regions = clip_regions(boxes[:, :4], gray.shape) or [(0, 0, gray.shape[1],
+                                                               gray.shape[0])]
+        box_centres = 0.5 * (boxes[:, :2] + boxes[:, 2:4])
+        cand = []
+        for x0, y0, x1, y1 in regions:
+            inside = ((box_centres >= (x0, y0)) & (box_centres <= (x1, y1))).all(axis=1)
+            sides = boxes[inside, 4] if inside.any() else boxes[:, 4]
+            # ArUco's perimeter limits are rates of the crop's larger side: only quads of
+            # about the predicted size get decoded (clutter in the crop costs little).
+            rate = 4.0 / float(max(x1 - x0, y1 - y0))
+            self.face_params.minMarkerPerimeterRate = rate * FACE_SIDE_RANGE[0] * sides.min()
+            self.face_params.maxMarkerPerimeterRate = rate * FACE_SIDE_RANGE[1] * sides.max()
+            self.face_aruco.setDetectorParameters(self.face_params)
+            found, _, rejected = self.face_aruco.detectMarkers(
+                np.ascontiguousarray(gray[y0:y1, x0:x1]))
+            offset = np.array([x0, y0], dtype=np.float64)
+            cand += [q.reshape(4, 2) + offset for q in list(found) + list(rejected)]
+        if not cand:
+            return []
+        known = np.array([d.corners for d in detections], dtype=np.float64)
+        cand = np.array(cand, dtype=np.float64)
+        area = np.abs(quad_areas(cand))
+        keep = (area >= self.min_side_px ** 2) & ~_inside_any(cand.mean(axis=1), known)
+        idx = np.flatnonzero(keep)
+        idx = idx[np.argsort(-area[idx], kind='stable')][:MAX_FACE_CANDIDATES]
+        if not idx.size:
+            return []
+        refined, ok = refine_quads(gray, cand[idx])
+        if not ok.any():
+            return []
+        quads, ids = self._decode_candidates(gray, refined[ok])
+        out = []
+        for tag_id, quad in zip(ids, quads):
+            if _inside_any(quad.mean(axis=0)[None], known)[0]:
+                continue                                   # a found tag, another contour
+            det = self._pose(tag_id, quad)
+            if not isinstance(det, DroppedDetection):
+                out.append(det)
+        return out
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`

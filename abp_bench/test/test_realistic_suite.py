@@ -50,7 +50,8 @@ def test_suite_runs_and_reports_every_condition_against_opencv(capsys):
     for cond in realistic_suite.CONDITIONS:
         assert f'| {cond} |' in out
     for heading in ('### By condition', '### By distance', '### By viewing angle',
-                    '### Rotation error of tags on cubes', '### Region search'):
+                    '### Rotation error of tags on cubes', '### Region search',
+                    '### Aspect top-1'):
         assert heading in out
 
 

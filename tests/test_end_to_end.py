@@ -35,8 +35,20 @@ def run_episode(tmp_path, object_index, extra=()):
          '--timeout', '600', *extra],
         capture_output=True, text=True, timeout=900, start_new_session=True)
     trace = proc.stdout + proc.stderr
+    if proc.returncode != 0 or not result_file.exists():
+        # pytest keeps only the last few tmp dirs: the nodes' logs go into the report.
+        trace += node_log_tails(log_dir)
     assert result_file.exists(), trace
     return proc.returncode, json.loads(result_file.read_text()), trace
+
+
+def node_log_tails(log_dir, lines=30):
+    """The last `lines` lines of each node log in `log_dir`, for a failure report."""
+    parts = []
+    for log in sorted(pathlib.Path(log_dir).glob('*.log')):
+        tail = log.read_text(errors='replace').splitlines()[-lines:]
+        parts.append(f'\n--- {log.name} (last {len(tail)} lines) ---\n' + '\n'.join(tail))
+    return ''.join(parts)
 
 
 def twin_with_mass(models, mass_name):

@@ -88,6 +88,12 @@ class PlannerNode(ManagedNode):
                             f'stopping rule {values["stopping_rule"]})')
 
     def activate(self):
+        # Publishers first: the latched belief can arrive, and its callback publish
+        # markers, as soon as the subscription below exists.
+        self._plan_pub = self.create_publisher(PlanStep, names.PLAN, qos.RELIABLE)
+        self._executed_pub = self.create_publisher(ExecutedAction, names.EXECUTED_ACTION,
+                                                   qos.RELIABLE)
+        self._markers_pub = self.create_publisher(MarkerArray, names.MARKERS, qos.LATCHED)
         # A deep reader: a burst on the topic must not push out the belief not yet taken.
         self._belief_sub = self.health.subscribe(
             Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
@@ -95,10 +101,6 @@ class PlannerNode(ManagedNode):
         self._observation_sub = self.health.subscribe(
             AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
             callback_group=self._group)
-        self._plan_pub = self.create_publisher(PlanStep, names.PLAN, qos.RELIABLE)
-        self._executed_pub = self.create_publisher(ExecutedAction, names.EXECUTED_ACTION,
-                                                   qos.RELIABLE)
-        self._markers_pub = self.create_publisher(MarkerArray, names.MARKERS, qos.LATCHED)
         self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
                                                callback_group=self._group)

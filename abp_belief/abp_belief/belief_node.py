@@ -17,6 +17,7 @@ import array
 import sys
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import SetParametersResult
 
 from abp_common import input_checks, names, qos
@@ -153,7 +154,12 @@ class BeliefNode(ManagedNode):
             return response
         self.step = 0
         self._gate.reset()
-        self._publish_belief()
+        # Stamped with the newest input taken, not with now: the corrections that follow
+        # carry their frames' stamps, which trail the clock by the perception latency, and
+        # a reader's stale-stamp check (the planner's) must not see the topic go back.
+        newest = self._stamps.newest_ns
+        self._publish_belief(None if newest is None else Time(
+            sec=newest // 1_000_000_000, nanosec=newest % 1_000_000_000))
         response.success = True
         response.message = f'belief reset over {self.model_set.num_models} models'
         return response

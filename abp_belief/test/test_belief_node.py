@@ -148,6 +148,9 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     assert spin(executor, good.done, 10) and good.result().success
     assert spin(executor, lambda: beliefs[-1].step == 0, 10)
     assert beliefs[-1].entropy == pytest.approx(np.log2(30))
+    # Stamped with the newest input taken (the overtaking frame), not the clock: the next
+    # correction carries its frame's stamp, and the topic must not go back in time.
+    assert (beliefs[-1].header.stamp.sec, beliefs[-1].header.stamp.nanosec) == (201, 0)
 
 
 @pytest.mark.parametrize('override, expected', [

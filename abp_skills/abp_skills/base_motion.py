@@ -230,14 +230,15 @@ class OrbitTracker:
     yaw_tolerance: float = np.radians(2.0)
     position_tolerance: float = 0.02
     settle_time: float = 4.0
-    # Settling state: driving to the end point, and the settling time added for that.
     # Longest step of plan time between two commands. A starved control loop (a loaded
     # machine, a simulation faster than real time) leaves the base on its last command
     # or, after the base's command timeout, standing still, while the clock runs on: the
     # plan pauses for the excess, so that the reference does not run away from the base.
     max_step: float = 0.25
+    # Settling state: driving to the end point, and the settling time added for that.
     _repositioning: bool = field(default=False, init=False, repr=False)
     _extra_settle_time: float = field(default=0.0, init=False, repr=False)
+    # The clock at the last command, and the plan time it was turned into.
     _last_t: float = field(default=None, init=False, repr=False)
     _plan_t: float = field(default=0.0, init=False, repr=False)
 

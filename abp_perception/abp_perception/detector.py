@@ -723,25 +723,18 @@ class TagDetector:
         if not cand:
             return []
         known = np.array([d.corners for d in detections], dtype=np.float64)
-        cand = np.array(cand, dtype=np.float64)
-        area = np.abs(quad_areas(cand))
-        keep = (area >= self.min_side_px ** 2) & ~_inside_any(cand.mean(axis=1), known)
-        idx = np.flatnonzero(keep)
-        idx = idx[np.argsort(-area[idx], kind='stable')][:MAX_FACE_CANDIDATES]
-        if not idx.size:
+        cand = self._candidates(cand, known, MAX_FACE_CANDIDATES)
+        if not len(cand):
             return []
-        refined, ok = refine_quads(gray, cand[idx])
+        refined, ok = refine_quads(gray, cand)
         if not ok.any():
             return []
         quads, ids = self._decode_candidates(gray, refined[ok])
-        out = []
-        for tag_id, quad in zip(ids, quads):
-            if _inside_any(quad.mean(axis=0)[None], known)[0]:
-                continue                                   # a found tag, another contour
-            det = self._pose(tag_id, quad)
-            if not isinstance(det, DroppedDetection):
-                out.append(det)
-        return out
+        # A found tag seen again through another contour is not a new one.
+        new = ~_inside_any(quads.mean(axis=1), known)
+        poses = [self._pose(tag_id, quad)
+                 for tag_id, quad, keep in zip(ids, quads, new) if keep]
+        return [det for det in poses if not isinstance(det, DroppedDetection)]
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`
@@ -786,16 +779,16 @@ class TagDetector:
         check_image_size(gray.shape[1], gray.shape[0], self.image_size)
         return np.ascontiguousarray(gray)
 
-    def _candidates(self, rejected, accepted):
+    def _candidates(self, rejected, accepted, limit=MAX_CANDIDATES):
         """Rejected contours worth a second look: large enough, not inside an accepted
-        marker (its inner contours), at most MAX_CANDIDATES, largest first."""
+        marker (its inner contours), at most `limit`, largest first."""
         cand = np.array([c.reshape(4, 2) for c in rejected], dtype=np.float64)
         area = np.abs(quad_areas(cand))
         keep = area >= self.min_side_px ** 2
         if accepted.shape[0] and keep.any():
             keep &= ~_inside_any(cand.mean(axis=1), accepted)
         idx = np.flatnonzero(keep)
-        idx = idx[np.argsort(-area[idx], kind='stable')][:MAX_CANDIDATES]
+        idx = idx[np.argsort(-area[idx], kind='stable')][:limit]
         return cand[idx]
 
     def _decode_candidates(self, gray, cand):

@@ -21,6 +21,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from .corners import quad_areas
+
 __all__ = ['adjacent_face_boxes', 'blur_tolerant_parameters']
 
 # The four faces next to a tag's face, in the tag frame (x right, y up, z out of the
@@ -94,9 +96,7 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
     px = px.reshape(-1, 8, 2)
     lo = px[:, :4].min(axis=1) - margin_px
     hi = px[:, :4].max(axis=1) + margin_px
-    mk = px[:, 4:]
-    area = 0.5 * np.abs(np.sum(mk[..., 0] * np.roll(mk[..., 1], -1, axis=1)
-                               - np.roll(mk[..., 0], -1, axis=1) * mk[..., 1], axis=1))
+    area = np.abs(quad_areas(px[:, 4:]))
     h, w = int(shape[0]), int(shape[1])
     lo = np.clip(lo, 0, (w, h))
     hi = np.clip(hi, 0, (w, h))

@@ -17,8 +17,8 @@ import array
 import sys
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.time import Time
 
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
@@ -106,7 +106,7 @@ class BeliefNode(ManagedNode):
             self.get_logger().debug('observation without aspect hypotheses: nothing to correct')
             return
         with self.health.timed():
-            if self._gate.offer(_stamp_ns(msg.header.stamp), msg):
+            if self._gate.offer(input_checks.stamp_ns(msg.header.stamp), msg):
                 self._correct(msg)
 
     def _correct(self, msg: AspectObservation):
@@ -130,7 +130,7 @@ class BeliefNode(ManagedNode):
                                          f'of {", ".join(ACTIONS)}); belief not predicted')
         self._stamps.check(msg.header.stamp, self.health.now_ns())
         self._stamps.taken(msg.header.stamp)
-        early = self._gate.action_executed(_stamp_ns(msg.header.stamp))
+        early = self._gate.action_executed(input_checks.stamp_ns(msg.header.stamp))
         if not msg.success:
             # The skill did not run to completion: the cube was not acted on as modelled.
             self.get_logger().info(f'{msg.action} failed ({msg.reason}); no prediction step')
@@ -158,8 +158,7 @@ class BeliefNode(ManagedNode):
         # carry their frames' stamps, which trail the clock by the perception latency, and
         # a reader's stale-stamp check (the planner's) must not see the topic go back.
         newest = self._stamps.newest_ns
-        self._publish_belief(None if newest is None else Time(
-            sec=newest // 1_000_000_000, nanosec=newest % 1_000_000_000))
+        self._publish_belief(None if newest is None else Time(nanoseconds=newest).to_msg())
         response.success = True
         response.message = f'belief reset over {self.model_set.num_models} models'
         return response
@@ -200,10 +199,6 @@ def _observation_of(msg):
     best = msg.hypotheses[0]
     z = (int(best.aspect_type), *(int(s) for s in best.slots))
     return (*z[:3], -1) if z[0] == 2 else z
-
-
-def _stamp_ns(stamp):
-    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 def main(args=None):

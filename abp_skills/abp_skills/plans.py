@@ -426,9 +426,7 @@ class SkillPlanner:
     def _two_hand_approach(self, q0, cube, along_x, squeeze):
         cfg = self.config
         grasp = self._grasp_points(cube, along_x, squeeze)
-        opened = {s: p + (cfg.approach_gap + squeeze) * (cube.y if s == 'right'
-                                                                    else -cube.y)
-                  for s, p in grasp.items()}
+        opened = self._opened(cube, grasp, squeeze)
         hover = {s: p + [0.0, 0.0, cfg.hover_height] for s, p in opened.items()}
         rest = self.reach_seed(q0)
         q_hover = self._solve(hover, q0, 'hover above the grasp', rest)
@@ -442,6 +440,12 @@ class SkillPlanner:
         q_grasp = self._full(close.end, q_open)
         return approach, Phase('contact', close), q_grasp, grasp, opened, hover
 
+    def _opened(self, cube, held, squeeze):
+        """{side: xyz}: the hands of `held` moved out along y_V to `approach_gap` clear of
+        the faces they press `squeeze` into."""
+        out = self.config.approach_gap + squeeze
+        return {s: p + out * (cube.y if s == 'right' else -cube.y) for s, p in held.items()}
+
     @staticmethod
     def _grasp_obstacle(cube, squeeze):
         """The cube as the closing hands' arms meet it: the squeeze is a force set-point,
@@ -452,9 +456,7 @@ class SkillPlanner:
     def _release(self, q_from, cube, held, q0, look, squeeze, what='release'):
         """Open the hands sideways from `held` ({side: xyz}), lift them, go home."""
         cfg = self.config
-        opened = {s: p + (cfg.approach_gap + squeeze) * (cube.y if s == 'right'
-                                                                    else -cube.y)
-                  for s, p in held.items()}
+        opened = self._opened(cube, held, squeeze)
         open_t = self._path_move(q_from, {s: np.array([held[s], opened[s]]) for s in SIDES},
                                  what)
         q_open = self._full(open_t.end, q_from)

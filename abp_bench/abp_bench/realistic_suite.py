@@ -498,10 +498,8 @@ def aspect_table(frames, max_distance=1.5):
         return (f"| {name} | {len(sel)} | {_pct(sel, 'aspect_ok')} | "
                 f"{sum(f['aspect_none'] for f in sel)} | {len(sel) - len(clear)} | "
                 f"{_pct(clear, 'aspect_ok')} |")
-    near = [f for f in frames if f['distance'] <= max_distance]
-    for condition in dict.fromkeys(f['condition'] for f in frames):
-        lines.append(row(condition, [f for f in near if f['condition'] == condition]))
-    lines.append(row('every condition', near))
+    for condition, _, fr in _by_condition([], frames):
+        lines.append(row(condition, [f for f in fr if f['distance'] <= max_distance]))
     return '\n'.join(lines)
 
 

@@ -17,7 +17,11 @@ floor coefficients together) and the hand-pad friction (sliding and torsional) a
 independently by uniform factors in 1 +- `--friction-jitter` (20 %). ORBIT plans at the
 cube's true centre, and the world's odometry noise (`--orbit-noise`, sigma_m sigma_rad per
 base motion; default the graph benchmark's fault setting) displaces the true base at the
-end of each base motion, unseen by odometry. A trial's outcome is the cube's discrete state
+end of each base motion, unseen by odometry. `--faults` adds the graph benchmark's contact
+faults: each manual trial draws a slipping grasp (hands 1 cm further out) and a missed push
+(10 cm out), each with probability 0.1, as the sim bridge's MuJoCo world draws them per
+contact episode; a survey with faults is the experience of a robot that has them, for
+`learn_atg`. A trial's outcome is the cube's discrete state
 (MODEL.md: up face x 45-deg yaw step, relative to the true base) after the skill has ended
 and the cube has settled; `abp_sim_bridge.mujoco_world.discrete_state` rounds the pose.
 
@@ -80,6 +84,7 @@ from abp_description.frames import axis_angle_deg, rot_z_deg
 NOMINAL_CENTRE = (0.40, 0.0, 0.05)     # m, base_link: the skills' plan and the cube's mean
 DIFF_THRESHOLD = 0.10                  # a flagged cell differs by more than this anywhere
 GOAL_UNIFORM_NOMINAL = 0.95
+FAULT_RATE = 0.1                       # --faults: graph_benchmark's p_slip_grasp, p_missed_push
 MASS_LABELS = ('uniform', 'heavy +x', 'heavy -x', 'heavy +y', 'heavy -y', 'heavy +z',
                'heavy -z')
 PARITIES = ('even', 'odd')
@@ -156,6 +161,12 @@ class Randomisation:
     orbit_noise: tuple = (0.01, 0.02)  # (m, rad) per base motion
     settle: float = 1.5                # s after a manual skill's plan ends
     plan_at_true_centre: bool = False  # False: plans at NOMINAL_CENTRE (estimate error)
+    # Contact faults per manual trial, drawn as the sim bridge's MuJoCo world draws them per
+    # contact episode (abp_sim_bridge.worlds): the hands held this much further out.
+    p_slip_grasp: float = 0.0
+    p_missed_push: float = 0.0
+    slip_grasp_opening: float = 0.01   # m (sim bridge parameter slip_grasp_opening)
+    missed_push_offset: float = 0.10   # m (sim bridge parameter missed_push_offset)
 
 
 _WORKER = {}
@@ -214,15 +225,23 @@ def simulate(task):
     changes = dict(cube_friction=0.5 * f_floor, floor_friction=0.5 * f_floor,
                    hand_friction=1.0 * f_hand, hand_torsional_friction=0.001 * f_hand,
                    seed=world_seed)
+    fault = ''
     if action in ORBIT_STEPS:
         changes['orbit_odometry_noise'] = tuple(rand.orbit_noise)
+    elif rand.p_slip_grasp > 0 or rand.p_missed_push > 0:
+        # Drawn after the other draws, so a survey without faults keeps its trials.
+        slip, miss = rng.random(2) < (rand.p_slip_grasp, rand.p_missed_push)
+        changes['grasp_opening'] = slip * rand.slip_grasp_opening \
+            + miss * rand.missed_push_offset
+        fault = ' and '.join(n for n, on in (('slip', slip), ('missed push', miss)) if on)
     world = make_world(kin, heavy_face=None if mass == 0 else mass - 1,
                        cube_x=NOMINAL_CENTRE[0] + dx, cube_y=NOMINAL_CENTRE[1] + dy,
                        cube_yaw=np.radians(45.0 * yaw - 180.0) + dyaw, up_face=up,
                        q0=_WORKER['q0'], **changes)
     record = dict(dx=float(dx), dy=float(dy), dyaw_deg=float(np.degrees(dyaw)),
                   friction_floor_scale=float(f_floor), friction_hand_scale=float(f_hand),
-                  world_seed=world_seed, start_ok=world.discrete_state() == (up, yaw))
+                  world_seed=world_seed, fault=fault,
+                  start_ok=world.discrete_state() == (up, yaw))
     start_rot, start_world = _relative_rotation(world), world.cube_pose()
     start_pos = start_world[:3, 3]
     ran, reason, touched = True, '', False
@@ -734,6 +753,15 @@ def main(argv=None):
     parser.add_argument('--friction-jitter', type=float, default=0.2)
     parser.add_argument('--orbit-noise', type=float, nargs=2, default=(0.01, 0.02),
                         metavar=('SIGMA_M', 'SIGMA_RAD'))
+    parser.add_argument('--faults', action='store_true',
+                        help="contact faults at graph_benchmark --faults' rates: each manual "
+                             'trial draws a slipping grasp and a missed push with '
+                             'probability 0.1 each (override with --p-slip-grasp, '
+                             '--p-missed-push)')
+    parser.add_argument('--p-slip-grasp', type=float, default=None,
+                        help='probability of a slipping grasp per manual trial (hands 1 cm out)')
+    parser.add_argument('--p-missed-push', type=float, default=None,
+                        help='probability of a missed push per manual trial (hands 10 cm out)')
     parser.add_argument('--no-symmetry-check', action='store_true')
     parser.add_argument('--no-progress', action='store_true')
     parser.add_argument('--report-only', action='store_true',
@@ -754,8 +782,14 @@ def main(argv=None):
         classes = {a: [c for c in cls if c.label in args.classes] for a, cls in classes.items()}
     if args.max_classes > 0:
         classes = {a: c[:args.max_classes] for a, c in classes.items()}
+    fault_rate = FAULT_RATE if args.faults else 0.0
+    p_slip = fault_rate if args.p_slip_grasp is None else args.p_slip_grasp
+    p_miss = fault_rate if args.p_missed_push is None else args.p_missed_push
+    if not (0.0 <= p_slip <= 1.0 and 0.0 <= p_miss <= 1.0):
+        parser.error('--p-slip-grasp and --p-missed-push must be in [0, 1]')
     rand = Randomisation(args.pos_jitter, args.yaw_jitter_deg, args.friction_jitter,
-                         tuple(args.orbit_noise), plan_at_true_centre=args.plan_at == 'true')
+                         tuple(args.orbit_noise), plan_at_true_centre=args.plan_at == 'true',
+                         p_slip_grasp=p_slip, p_missed_push=p_miss)
     n_classes = sum(len(c) for c in classes.values())
     print(f'outcome_survey: {n_classes} classes, {args.trials} trials each '
           f'({args.orbit_trials or args.trials} for ORBIT), {args.jobs} workers', flush=True)

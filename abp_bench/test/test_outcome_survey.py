@@ -77,3 +77,15 @@ def test_tiny_survey_writes_json_markdown_and_heat_map(tmp_path):
     assert pivot['flagged_cells'] in (0, 4)
     assert '| PUSH | mass +y_V, even yaw | 4 |' in (tmp_path / 'survey.md').read_text()
     assert (tmp_path / 'survey.png').stat().st_size > 10_000
+
+
+def test_a_drawn_missed_push_leaves_the_cube_alone():
+    # The fault is physical: the hands pass 10 cm outside the cube, so nothing touches it.
+    rand = survey.Randomisation(p_missed_push=1.0)
+    record = survey.simulate(dict(action='PUSH', mass=0, state=4, seed=3, rand=rand.__dict__))
+    assert record['fault'] == 'missed push'
+    assert record['ran'] and record['start_ok']
+    assert record['final_state'] == 4 and record['moved_cm'] < 0.5, record
+    nominal = survey.simulate(dict(action='PUSH', mass=0, state=4, seed=3,
+                                   rand=survey.Randomisation().__dict__))
+    assert nominal['fault'] == '' and nominal['moved_cm'] > 1.0, nominal

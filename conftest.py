@@ -102,6 +102,16 @@ class ProcessGroup:
             f"{proc.args!r} did not print {text!r} within {timeout} s "
             f"(exit code {proc.poll()}); output so far:\n{''.join(lines)}{pending}")
 
+    def wait_for_lines(self, proc, texts, timeout):
+        """Read `proc`'s output until each of `texts` has been in a line, in any order;
+        returns the lines read."""
+        deadline = time.monotonic() + timeout
+        lines, missing = [], list(texts)
+        while missing:
+            lines += self.wait_for_line(proc, missing[0], max(deadline - time.monotonic(), 0))
+            missing = [t for t in missing if not any(t in line for line in lines)]
+        return lines
+
     def output(self, proc):
         """All output of a finished (or stopped) process not yet read by wait_for_line."""
         if proc.stdout is None:

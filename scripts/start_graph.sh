@@ -94,11 +94,12 @@ planners="$(python -c 'from abp_planner.planner import PLANNER_NAMES; print(*PLA
 mapfile -t topics < <(python - "$namespace" <<'PY'
 import sys
 from abp_common import names
-for name in (names.BELIEF, names.ASPECT_OBSERVATION):
+for name in (names.BELIEF, names.ASPECT_OBSERVATION, names.EXECUTED_ACTION, names.PLAN):
     print(names.absolute(name, sys.argv[1]))
 PY
 )
 belief_topic="${topics[0]}"; observation_topic="${topics[1]}"
+action_topic="${topics[2]}"; plan_topic="${topics[3]}"
 
 config="$(python -c 'from ament_index_python.packages import get_package_share_directory as g; print(g("abp_bringup"))')/config/abp.yaml"
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
@@ -247,17 +248,20 @@ done
 echo "[start_graph] graph ready: ${managed[*]} active"
 
 if [ -n "$record" ]; then
-  # Subscriptions match their publishers some time after a node starts: wait until
-  # the recorder hears the belief and the observations, so the bag has the episode's start.
-  wanted=("$belief_topic")
-  [ "$robot" = 0 ] && wanted+=("$observation_topic")
-  for topic in "${wanted[@]}"; do
+  # Subscriptions match their publishers some time after a node starts: wait until the
+  # recorder hears the belief and the observations, so the bag has the episode's start,
+  # and has matched the planner's publishers of the actions and plans, which are volatile
+  # (a message sent before the match is not in the bag).
+  wanted=("first message on $belief_topic" "publisher matched on $action_topic"
+          "publisher matched on $plan_topic")
+  [ "$robot" = 0 ] && wanted+=("first message on $observation_topic")
+  for line in "${wanted[@]}"; do
     for _ in $(seq 300); do
-      grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null && break
+      grep -qF "$line" "$log_dir/bag_recorder.log" 2>/dev/null && break
       sleep 0.1
     done
-    grep -q "first message on $topic" "$log_dir/bag_recorder.log" 2>/dev/null \
-      || echo "[start_graph] warning: the recorder has heard nothing on $topic after 30 s" >&2
+    grep -qF "$line" "$log_dir/bag_recorder.log" 2>/dev/null \
+      || echo "[start_graph] warning: the recorder has not logged '$line' after 30 s" >&2
   done
 fi
 

@@ -2,6 +2,8 @@
 
 Messages are taken serialized from DDS (no deserialisation) and written with the
 node's clock as receive time, so with use_sim_time the bag is in sim time.
+It logs `publisher matched on <topic>` when a publisher of a recorded topic is matched
+(a volatile topic's earlier messages are not in the bag) and `first message on <topic>`.
 Parameters (bag.RECORDER_SPECS): output (a new directory), topics (names; empty = the
 graph's topics), record_images, storage (mcap | sqlite3). Topics are resolved in the
 node's namespace and written to the bag with their absolute names (a graph under
@@ -11,6 +13,7 @@ node's namespace and written to the bag with their absolute names (a graph under
 import importlib
 import sys
 
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 
 from abp_common import qos
@@ -56,13 +59,17 @@ class BagRecorder(Node):
         topics = recorded_topics(values['topics'], values['record_images'],
                                  self.get_namespace())
         self.writer = BagWriter(output, topics, values['storage'])
-        # DDS matches each subscription to its publishers some time after this, so
-        # the first message per topic is logged: it says that topic is being recorded.
+        # DDS matches each subscription to its publishers some time after this. A
+        # volatile topic's messages published before the match never reach the bag, so
+        # each match is logged as it happens (what a caller waits for before starting an
+        # episode), and so is the first message per topic.
         self._topics_heard = set()
         for topic, msgtype in topics.items():
-            self.create_subscription(message_class(msgtype), topic,
-                                     lambda data, t=topic: self._write(t, data),
-                                     topic_qos(topic), raw=True)
+            self.create_subscription(
+                message_class(msgtype), topic, lambda data, t=topic: self._write(t, data),
+                topic_qos(topic), raw=True,
+                event_callbacks=SubscriptionEventCallbacks(
+                    matched=lambda status, t=topic: self._on_matched(t, status)))
         self.get_logger().info(f'recording {len(topics)} topics to {output}')
 
     def _write(self, topic, data):
@@ -70,6 +77,11 @@ class BagRecorder(Node):
         if topic not in self._topics_heard:
             self._topics_heard.add(topic)
             self.get_logger().info(f'first message on {topic}')
+
+    def _on_matched(self, topic, status):
+        if status.current_count_change > 0:
+            self.get_logger().info(f'publisher matched on {topic} '
+                                   f'({status.current_count} matched)')
 
     def close(self):
         self.writer.close()

@@ -49,12 +49,12 @@ def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_c
     recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
                                     '-p', f'output:={bag}'])
     ros_processes.wait_for_line(world, 'READY', timeout=30)
-    # Start the episode only once the recorder hears both inputs the replay needs.
-    heard = ''.join(ros_processes.wait_for_line(recorder, 'first message on /abp/', 60))
-    for topic in ('/abp/aspect_observation', '/abp/belief'):
-        if f'first message on {topic}' not in heard:
-            heard += ''.join(ros_processes.wait_for_line(recorder, f'first message on {topic}',
-                                                         60))
+    # Start the episode only once the recorder hears both inputs the replay needs and has
+    # matched the planner's publishers of the volatile topics it writes during the
+    # episode (messages published before the match are not recorded).
+    ros_processes.wait_for_lines(recorder, [
+        'first message on /abp/aspect_observation', 'first message on /abp/belief',
+        'publisher matched on /abp/executed_action', 'publisher matched on /abp/plan'], 60)
 
     result_file = tmp_path / 'result.json'
     client = subprocess.run([executable('abp_bringup', 'recognize'), '--threshold', '0.99',

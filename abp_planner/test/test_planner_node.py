@@ -35,6 +35,17 @@ def executable(package, name):
 PARAMS = ['--ros-args', '-p', 'model_set:=robot', '-p', f'seed:={SEED}']
 
 
+class Received(list):
+    """The messages of one topic, with the subscription that takes them."""
+
+    def __init__(self, node, msg_type, topic):
+        super().__init__()
+        self.subscription = node.create_subscription(msg_type, topic, self.append, RELIABLE)
+
+    def matched(self):
+        return self.subscription.get_publisher_count() >= 1
+
+
 def start_belief(ros_processes):
     return ros_processes.start([executable('abp_belief', 'belief'), *PARAMS])
 
@@ -56,9 +67,8 @@ def client(rclpy_context):
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
     action_client = ActionClient(node, Recognize, '/abp/recognize')
-    executed, plans = [], []
-    node.create_subscription(ExecutedAction, '/abp/executed_action', executed.append, RELIABLE)
-    node.create_subscription(PlanStep, '/abp/plan', plans.append, RELIABLE)
+    executed = Received(node, ExecutedAction, '/abp/executed_action')
+    plans = Received(node, PlanStep, '/abp/plan')
     yield node, executor, action_client, executed, plans
     action_client.destroy()
     executor.shutdown()
@@ -81,7 +91,12 @@ def recognize(executor, action_client, spin, answering, goal, feedback=None, tim
               executed=None, plans=None):
     """The goal's result, once the `executed` actions and `plans` seen on their topics
     number its actions_taken: DDS keeps no order between a topic and the action's result,
-    so the last action's messages can arrive after the result."""
+    so the last action's messages can arrive after the result. The goal is sent once
+    those subscriptions have matched the planner's publishers: the topics are volatile,
+    and an episode against the model world publishes its first action within a second."""
+    watched = [seen for seen in (executed, plans) if seen is not None]
+    assert spin(executor, lambda: all(seen.matched() for seen in watched), 30), \
+        'the planner publishes no executed actions or plans'
     result = send_goal(executor, action_client, spin, answering, goal,
                        feedback).get_result_async()
     assert spin(executor, result.done, timeout), 'recognition did not finish'

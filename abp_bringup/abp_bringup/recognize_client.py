@@ -76,10 +76,13 @@ class Tracer:
         self.ground_truth = None
         self.printed_steps = set()
         self.printing = False  # beliefs from before our goal (latched, or another episode's)
+        self.executed = 0
         events = qos.reliable(TRACE_DEPTH)
-        node.create_subscription(PlanStep, names.PLAN, self.on_plan, events)
-        node.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
-                                 events)
+        # Volatile: what the planner publishes before these match is not seen.
+        self.event_subscriptions = (
+            node.create_subscription(PlanStep, names.PLAN, self.on_plan, events),
+            node.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
+                                     events))
         node.create_subscription(Belief, names.BELIEF, self.on_belief, qos.LATCHED)
         node.create_subscription(SimGroundTruth, names.GROUND_TRUTH, self.on_truth,
                                  qos.LATCHED)
@@ -94,7 +97,12 @@ class Tracer:
             line += f"  (infeasible: {', '.join(refused)})"
         print(line, flush=True)
 
+    def matched(self):
+        """Whether the plan and executed-action subscriptions have matched a publisher."""
+        return all(sub.get_publisher_count() > 0 for sub in self.event_subscriptions)
+
     def on_executed(self, msg):
+        self.executed += 1
         outcome = 'done' if msg.success else f'FAILED: {msg.reason}'
         duration = msg.duration.sec + msg.duration.nanosec * 1e-9
         print(f'action {msg.sequence:<3}{msg.action:<10} {outcome} ({duration:.1f} s)',
@@ -146,6 +154,11 @@ def main(argv=None):
             print(f'[recognize] no {server} server within {args.wait:.0f} s: is the '
                   'planner running?', file=sys.stderr)
             return 1
+        # The planner's plan and action topics are volatile: match them before the goal,
+        # so that the trace has the first action (bounded: a trace is not worth a hang).
+        if not spin_until(node, tracer.matched, 10.0):
+            print('[recognize] warning: not subscribed to the planner\'s plans and actions '
+                  'after 10 s; the trace may miss the first ones', file=sys.stderr)
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
                               posterior_threshold=args.threshold,
                               stopping_rule=args.stopping_rule,
@@ -169,7 +182,10 @@ def main(argv=None):
             if not result_future.done():
                 return 1
         response = result_future.result()
-        spin_until(node, lambda: False, 0.3)  # let the last belief/trace messages arrive
+        # DDS keeps no order between the result and the topics: wait for the last action's
+        # message (bounded), then briefly for the belief that follows it.
+        spin_until(node, lambda: tracer.executed >= response.result.actions_taken, 5.0)
+        spin_until(node, lambda: False, 0.3)
         return report(response, tracer, args.result_json)
     except KeyboardInterrupt:
         if handle is not None and handle.accepted:

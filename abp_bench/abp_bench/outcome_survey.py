@@ -210,6 +210,7 @@ def simulate(task):
     if not _WORKER:
         _init_worker()
     from abp_bench.mujoco_skill_runner import make_world, run_orbit, run_plan
+    from abp_sim_bridge.mujoco_world import draw_contact_fault
 
     t0, cpu0 = time.perf_counter(), time.process_time()
     action, mass, state = task['action'], int(task['mass']), int(task['state'])
@@ -230,10 +231,9 @@ def simulate(task):
         changes['orbit_odometry_noise'] = tuple(rand.orbit_noise)
     elif rand.p_slip_grasp > 0 or rand.p_missed_push > 0:
         # Drawn after the other draws, so a survey without faults keeps its trials.
-        slip, miss = rng.random(2) < (rand.p_slip_grasp, rand.p_missed_push)
-        changes['grasp_opening'] = slip * rand.slip_grasp_opening \
-            + miss * rand.missed_push_offset
-        fault = ' and '.join(n for n, on in (('slip', slip), ('missed push', miss)) if on)
+        changes['grasp_opening'], fault = draw_contact_fault(
+            rng, rand.p_slip_grasp, rand.p_missed_push, rand.slip_grasp_opening,
+            rand.missed_push_offset)
     world = make_world(kin, heavy_face=None if mass == 0 else mass - 1,
                        cube_x=NOMINAL_CENTRE[0] + dx, cube_y=NOMINAL_CENTRE[1] + dy,
                        cube_yaw=np.radians(45.0 * yaw - 180.0) + dyaw, up_face=up,

@@ -72,6 +72,18 @@ class CubeState:
         return out
 
 
+def draw_contact_fault(rng, p_slip_grasp, p_missed_push, slip_grasp_opening,
+                       missed_push_offset):
+    """(grasp opening m, label) of one contact episode: a slipping grasp and a missed push
+    drawn independently (in that order) with their probabilities; the opening is what
+    each hand is held further out, the label names the faults drawn ('' for none)."""
+    slip = rng.random() < p_slip_grasp
+    miss = rng.random() < p_missed_push
+    opening = slip * slip_grasp_opening + miss * missed_push_offset
+    label = ' and '.join(n for n, on in (('slip', slip), ('missed push', miss)) if on)
+    return opening, label
+
+
 def discrete_state(cube_pose, base_pose):
     """MODEL.md's (up, yaw) of a cube (4x4 world pose) seen from the base (x, y, yaw):
     `up` the body face pointing most upwards, `yaw` the nearest 45-deg step of Rz in
@@ -576,4 +588,4 @@ def _wheel_geometry(kin):
 
 
 __all__ = ['ContactEvent', 'CubeState', 'EGL_HINT', 'MujocoSettings', 'MujocoWorld',
-           'discrete_state']
+           'discrete_state', 'draw_contact_fault']

@@ -102,7 +102,7 @@ def check_rendering():
 
 
 def mujoco_world_class():
-    from .mujoco_world import MujocoWorld
+    from .mujoco_world import MujocoWorld, draw_contact_fault
 
     class FaultyMujocoWorld(MujocoWorld):
         """MujocoWorld whose grasp opening is redrawn for every contact episode."""
@@ -118,14 +118,11 @@ def mujoco_world_class():
             f = self._faults
             if f is None or (f.p_slip_grasp <= 0 and f.p_missed_push <= 0):
                 return
-            rng = self._fault_rng
-            slip = rng.random() < f.p_slip_grasp
-            miss = rng.random() < f.p_missed_push
-            extra = slip * f.slip_grasp_opening + miss * f.missed_push_offset
+            extra, what = draw_contact_fault(self._fault_rng, f.p_slip_grasp, f.p_missed_push,
+                                             f.slip_grasp_opening, f.missed_push_offset)
             self.set_grasp_opening(self._base_opening + extra)
             if extra:
                 from .world_interface import ContactEvent
-                what = ' and '.join(n for n, on in (('slip', slip), ('missed push', miss)) if on)
                 self.events.append((self.time_ns, ContactEvent(
                     '', 'fault drawn', f'next contact: {what}, hands {extra * 100:.1f} cm '
                     'further out')))

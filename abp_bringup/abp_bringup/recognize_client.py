@@ -157,7 +157,7 @@ def main(argv=None):
         # The planner's plan and action topics are volatile: match them before the goal,
         # so that the trace has the first action (bounded: a trace is not worth a hang).
         if not spin_until(node, tracer.matched, 10.0):
-            print('[recognize] warning: not subscribed to the planner\'s plans and actions '
+            print("[recognize] warning: not subscribed to the planner's plans and actions "
                   'after 10 s; the trace may miss the first ones', file=sys.stderr)
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
                               posterior_threshold=args.threshold,

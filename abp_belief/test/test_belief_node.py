@@ -11,6 +11,7 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.filter import BeliefFilter  # noqa: E402
@@ -151,6 +152,54 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     # Stamped with the newest input taken (the overtaking frame), not the clock: the next
     # correction carries its frame's stamp, and the topic must not go back in time.
     assert (beliefs[-1].header.stamp.sec, beliefs[-1].header.stamp.nanosec) == (201, 0)
+
+
+def test_reset_belief_after_a_restarted_simulation_is_not_stamped_in_the_future(
+        ros_processes, rclpy_context, spin):
+    """On sim time, the reset belief carries the newest input's stamp, but never one after
+    the clock: a restarted simulation's clock starts again near 0, and the planner refuses
+    a belief stamped in its future (a crash-test finding)."""
+    ros_processes.start([belief_executable(), '--ros-args', '-p', 'model_set:=robot',
+                         '-p', f'seed:={SEED}', '-p', 'use_sim_time:=true'])
+    node = rclpy.create_node('belief_sim_time_tester', context=rclpy_context)
+    executor = SingleThreadedExecutor(context=rclpy_context)
+    executor.add_node(node)
+    try:
+        beliefs = []
+        node.create_subscription(Belief, '/abp/belief', beliefs.append, LATCHED)
+        clock_pub = node.create_publisher(Clock, '/clock', RELIABLE)
+        obs_pub = node.create_publisher(AspectObservation, '/abp/aspect_observation',
+                                        RELIABLE)
+        reset = node.create_client(ResetBelief, '/abp/reset_belief')
+        assert spin(executor, lambda: beliefs and reset.service_is_ready()
+                    and obs_pub.get_subscription_count() > 0
+                    and clock_pub.get_subscription_count() > 0, 30)
+
+        def publish_clock(sec):
+            clock_pub.publish(Clock(clock=rclpy.time.Time(seconds=sec).to_msg()))
+
+        models = robot_set(seed=SEED)
+        z = models.aspect_key(models.node_aspect[1])
+        publish_clock(100)
+        frame = observation_msg(z)
+        frame.header.stamp.sec = 100
+        obs_pub.publish(frame)
+        assert spin(executor, lambda: beliefs[-1].step == 1, 10), 'observation not applied'
+
+        def reset_stamp():
+            # The node takes the restarted clock when its /clock message arrives: ask
+            # again (with the clock again) until it has.
+            publish_clock(3)
+            call = reset.call_async(ResetBelief.Request())
+            assert spin(executor, call.done, 10) and call.result().success
+            assert spin(executor, lambda: beliefs[-1].step == 0, 10)
+            return beliefs[-1].header.stamp.sec
+
+        assert spin(executor, lambda: reset_stamp() <= 3, 20), \
+            f'reset belief stamped {beliefs[-1].header.stamp.sec} s on a clock at 3 s'
+    finally:
+        executor.shutdown()
+        node.destroy_node()
 
 
 @pytest.mark.parametrize('override, expected', [

@@ -112,6 +112,14 @@ class StampCheck:
         if self.newest_ns is None or t > self.newest_ns:
             self.newest_ns = t
 
+    def newest_not_after(self, now_ns):
+        """The newest stamp taken, but never later than `now_ns` (a clock that has not
+        started, 0, limits nothing): after a restarted simulation the newest stamp is
+        from the old clock, and a reader's `stamp_future` check would refuse it."""
+        if self.newest_ns is None or now_ns <= 0:
+            return self.newest_ns
+        return min(self.newest_ns, now_ns)
+
 
 # -- the graph's messages -----------------------------------------------------------------
 

@@ -95,6 +95,16 @@ def test_stamp_check_future_past_and_replays():
     StampCheck(1.0, 10.0, zero_is_now=True).check(stamp(0), now)
 
 
+def test_newest_stamp_is_clamped_to_a_clock_that_went_back():
+    check = StampCheck(1.0, 10.0)
+    assert check.newest_not_after(5 * 10**9) is None
+    check.taken(stamp(50.0))
+    assert check.newest_not_after(60 * 10**9) == 50 * 10**9
+    # The simulation restarted: its clock is at 4 s, the newest stamp taken at 50 s.
+    assert check.newest_not_after(4 * 10**9) == 4 * 10**9
+    assert check.newest_not_after(0) == 50 * 10**9   # no clock yet: nothing to clamp to
+
+
 def pose(x=0.0, w=1.0):
     return NS(position=NS(x=x, y=0.0, z=0.0), orientation=NS(x=0.0, y=0.0, z=0.0, w=w))
 

@@ -36,6 +36,37 @@ NODE_POLL_S = 0.5
 BELIEF_NODE = 'belief'
 
 
+class ObservationTally:
+    """What perception sent since the episode's belief reset, so that an episode that
+    never sees the cube says why: nothing arrived, observations without an aspect
+    hypothesis (the cube not in view, too few tags), or observations with one that the
+    belief never took (the belief node not receiving them). Counts only; callbacks on
+    several threads may add while the runner reads, and a count off by one is harmless."""
+
+    def __init__(self):
+        self.reset()
+
+    def reset(self):
+        self.total = 0
+        self.with_hypotheses = 0
+        self.last_tags = ()
+
+    def add(self, num_hypotheses, tag_ids):
+        self.total += 1
+        self.with_hypotheses += num_hypotheses > 0
+        self.last_tags = tuple(tag_ids)
+
+    def describe(self):
+        if self.total == 0:
+            return 'no aspect observation arrived (is perception running?)'
+        if self.with_hypotheses == 0:
+            tags = ', '.join(str(t) for t in self.last_tags) or 'none'
+            return (f'{self.total} aspect observations arrived, none with an aspect '
+                    f'hypothesis (tags in the last one: {tags}; is the cube in view?)')
+        return (f'{self.with_hypotheses} of {self.total} aspect observations had an aspect '
+                'hypothesis, but no belief took one (does the belief node receive them?)')
+
+
 class RecognitionAborted(Exception):
     """The loop cannot go on (no observation, no feasible action); the reason is the message."""
 
@@ -99,6 +130,9 @@ class EpisodePorts(Protocol):
 
     def reset_belief(self) -> None:
         """Reset the belief node; raise RecognitionAborted if that fails."""
+
+    def observations_since_reset(self) -> str:
+        """What perception sent since the last reset (ObservationTally.describe)."""
 
     def wait_for_belief(self, predicate, timeout_s):
         """The latest belief once `predicate(belief)` holds, or None after `timeout_s`."""
@@ -223,8 +257,8 @@ class EpisodeRunner:
         first = self.ports.wait_for_belief(lambda b: b.step >= 1, self.observation_timeout_s)
         if first is None:
             raise RecognitionAborted(
-                f'no observation of the cube within {self.observation_timeout_s:.1f} s (is '
-                'perception running and the cube in view?)')
+                f'no observation of the cube within {self.observation_timeout_s:.1f} s: '
+                f'{self.ports.observations_since_reset()}')
         return first
 
     def _wait_for_lost_nodes(self, belief):

@@ -46,6 +46,7 @@ from .episode import (
     BELIEF_NODE,
     CANCELED,
     EpisodeRunner,
+    ObservationTally,
     RecognitionAborted,
     RuleStop,
     expected_gain,
@@ -75,6 +76,7 @@ class PlannerNode(ManagedNode):
         self._belief_lock = threading.Condition()
         self._belief_msg = None
         self._cube_pose = None
+        self._observations = ObservationTally()
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
@@ -135,6 +137,7 @@ class PlannerNode(ManagedNode):
         input_checks.aspect_observation(msg)
         self._observation_stamps.check(msg.header.stamp, self.health.now_ns())
         self._observation_stamps.taken(msg.header.stamp)
+        self._observations.add(len(msg.hypotheses), (f.type for f in msg.features))
         if msg.hypotheses:
             self._cube_pose = (msg.header.frame_id, msg.hypotheses[0].object_pose.pose)
             self._publish_markers()
@@ -219,6 +222,7 @@ class PlannerNode(ManagedNode):
             self._skills_at_start = self._skills.ready()
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
+        self._observations.reset()
         response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
         if response is None or not response.success:
             raise RecognitionAborted('belief reset failed: '
@@ -233,6 +237,9 @@ class PlannerNode(ManagedNode):
                     return None
                 self._belief_lock.wait(min(remaining, 0.1))
             return self._belief_msg
+
+    def observations_since_reset(self):
+        return self._observations.describe()
 
     def latest_belief(self):
         with self._belief_lock:

@@ -15,6 +15,7 @@ from abp_planner.episode import (
     FEASIBILITY_RETRY_S,
     SUCCEEDED,
     EpisodeRunner,
+    ObservationTally,
     PosteriorStop,
     RecognitionAborted,
     RuleStop,
@@ -88,6 +89,9 @@ class FakePorts:
 
     def missing_nodes(self):
         return list(self.missing(self)) if self.missing else []
+
+    def observations_since_reset(self):
+        return 'no aspect observation arrived (is perception running?)'
 
     def wait_for_belief(self, predicate, timeout_s):
         if self.belief is not None and predicate(self.belief):
@@ -272,7 +276,21 @@ def test_no_first_observation_aborts():
     ports = FakePorts(FakeClock(), observe=False)
     result = run(ports, timeout=5.0)
     assert result.outcome == ABORTED
-    assert result.reason.startswith('no observation of the cube within 5.0 s')
+    assert result.reason == ('no observation of the cube within 5.0 s: no aspect observation '
+                             'arrived (is perception running?)')
+
+
+def test_observation_tally_says_why_no_belief_came():
+    tally = ObservationTally()
+    assert tally.describe().startswith('no aspect observation arrived')
+    tally.add(0, [3])
+    tally.add(0, [])
+    assert tally.describe() == ('2 aspect observations arrived, none with an aspect '
+                                'hypothesis (tags in the last one: none; is the cube in view?)')
+    tally.add(2, [1, 4])
+    assert tally.describe().startswith('1 of 3 aspect observations had an aspect hypothesis')
+    tally.reset()
+    assert tally.total == 0 and tally.with_hypotheses == 0
 
 
 def test_reset_failure_aborts():

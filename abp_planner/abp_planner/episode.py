@@ -37,11 +37,12 @@ BELIEF_NODE = 'belief'
 
 
 class ObservationTally:
-    """What perception sent since the episode's belief reset, so that an episode that
-    never sees the cube says why: nothing arrived, observations without an aspect
-    hypothesis (the cube not in view, too few tags), or observations with one that the
-    belief never took (the belief node not receiving them). Counts only; callbacks on
-    several threads may add while the runner reads, and a count off by one is harmless."""
+    """What reached the planner since the episode's belief reset, so that an episode that
+    never sees the cube says why: no observation at all, observations without an aspect
+    hypothesis (the cube not in view, too few tags), or observations with one that no
+    belief followed (the belief node not taking them); and how many beliefs arrived (none:
+    this node's own inputs stalled). Counts only; callbacks on several threads may add
+    while the runner reads, and a count off by one is harmless."""
 
     def __init__(self):
         self.reset()
@@ -50,21 +51,32 @@ class ObservationTally:
         self.total = 0
         self.with_hypotheses = 0
         self.last_tags = ()
+        self.beliefs = 0
+        self.last_step = None
 
     def add(self, num_hypotheses, tag_ids):
         self.total += 1
         self.with_hypotheses += num_hypotheses > 0
         self.last_tags = tuple(tag_ids)
 
+    def add_belief(self, step):
+        self.beliefs += 1
+        self.last_step = int(step)
+
     def describe(self):
         if self.total == 0:
-            return 'no aspect observation arrived (is perception running?)'
-        if self.with_hypotheses == 0:
+            seen = 'no aspect observation arrived (is perception running?)'
+        elif self.with_hypotheses == 0:
             tags = ', '.join(str(t) for t in self.last_tags) or 'none'
-            return (f'{self.total} aspect observations arrived, none with an aspect '
+            seen = (f'{self.total} aspect observations arrived, none with an aspect '
                     f'hypothesis (tags in the last one: {tags}; is the cube in view?)')
-        return (f'{self.with_hypotheses} of {self.total} aspect observations had an aspect '
-                'hypothesis, but no belief took one (does the belief node receive them?)')
+        else:
+            seen = (f'{self.with_hypotheses} of {self.total} aspect observations had an '
+                    'aspect hypothesis, but no belief took one (does the belief node '
+                    'receive them?)')
+        last = f', the last at step {self.last_step}' if self.last_step is not None else ''
+        plural = '' if self.beliefs == 1 else 's'
+        return f'{seen}; {self.beliefs} belief{plural} since the reset{last}'
 
 
 class RecognitionAborted(Exception):

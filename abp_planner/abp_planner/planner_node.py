@@ -128,6 +128,7 @@ class PlannerNode(ManagedNode):
         input_checks.belief(msg, self.model_set.num_nodes)
         self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
         self._belief_stamps.taken(msg.header.stamp)
+        self._observations.add_belief(msg.step)
         with self._belief_lock:
             self._belief_msg = msg
             self._belief_lock.notify_all()

@@ -91,7 +91,8 @@ class FakePorts:
         return list(self.missing(self)) if self.missing else []
 
     def observations_since_reset(self):
-        return 'no aspect observation arrived (is perception running?)'
+        return 'no aspect observation arrived (is perception running?); 1 belief since ' \
+            'the reset, the last at step 0'
 
     def wait_for_belief(self, predicate, timeout_s):
         if self.belief is not None and predicate(self.belief):
@@ -277,20 +278,24 @@ def test_no_first_observation_aborts():
     result = run(ports, timeout=5.0)
     assert result.outcome == ABORTED
     assert result.reason == ('no observation of the cube within 5.0 s: no aspect observation '
-                             'arrived (is perception running?)')
+                             'arrived (is perception running?); 1 belief since the reset, '
+                             'the last at step 0')
 
 
 def test_observation_tally_says_why_no_belief_came():
     tally = ObservationTally()
-    assert tally.describe().startswith('no aspect observation arrived')
+    assert tally.describe() == ('no aspect observation arrived (is perception running?); '
+                                '0 beliefs since the reset')
+    tally.add_belief(0)
     tally.add(0, [3])
     tally.add(0, [])
     assert tally.describe() == ('2 aspect observations arrived, none with an aspect '
-                                'hypothesis (tags in the last one: none; is the cube in view?)')
+                                'hypothesis (tags in the last one: none; is the cube in view?); '
+                                '1 belief since the reset, the last at step 0')
     tally.add(2, [1, 4])
     assert tally.describe().startswith('1 of 3 aspect observations had an aspect hypothesis')
     tally.reset()
-    assert tally.total == 0 and tally.with_hypotheses == 0
+    assert tally.total == 0 and tally.with_hypotheses == 0 and tally.beliefs == 0
 
 
 def test_reset_failure_aborts():

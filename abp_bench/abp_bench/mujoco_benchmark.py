@@ -48,7 +48,7 @@ from abp_description.controllers import BODY_JOINTS  # noqa: E402
 from abp_description.frames import rot_z  # noqa: E402
 from abp_description.kinematics import RobotKinematics, look_at  # noqa: E402
 
-NOMINAL_CENTRE = np.array([0.40, 0.0, 0.05])   # m, base_link: where the skills plan
+NOMINAL_CENTRE = np.array([0.40, 0.0, 0.05])   # m, base_link: the benchmark's cube
 RESOLUTIONS = ((320, 240), (640, 480), (1280, 960))
 DISTANCE_EDGES = (0.5, 1.0, 1.5, 2.0)          # m, camera to tag centre
 GOAL_RANGE = 1.5                               # m: the recall goal's tags

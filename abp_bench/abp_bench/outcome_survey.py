@@ -9,21 +9,22 @@ tables (docs/MODEL.md, `abp_belief.modelset.build_outcome_tables`).
 `orbit_plan` tracked on odometry by `base_motion.OrbitTracker` at the skill node's 20 Hz)
 drive a `MujocoWorld` directly, without DDS (`abp_bench.mujoco_skill_runner`). The robot
 stands at the origin in its home posture looking at the cube; the manual skills are
-planned once per worker at the nominal cube centre (0.40, 0, 0.05) m in base_link (within
-the base approach tolerance, so no base motion), and the cube really stands `--pos-jitter`
-(+-1 cm, uniform in x and y) and `--yaw-jitter-deg` (+-3 deg) off that: the randomised
-start doubles as a cube-estimate error of that size. The cube-floor friction (cube and
-floor coefficients together) and the hand-pad friction (sliding and torsional) are scaled
-independently by uniform factors in 1 +- `--friction-jitter` (20 %). ORBIT plans at the
-cube's true centre, and the world's odometry noise (`--orbit-noise`, sigma_m sigma_rad per
-base motion; default the graph benchmark's fault setting) displaces the true base at the
-end of each base motion, unseen by odometry. `--faults` adds the graph benchmark's contact
-faults: each manual trial draws a slipping grasp (hands 1 cm further out) and a missed push
-(10 cm out), each with probability 0.1, as the sim bridge's MuJoCo world draws them per
-contact episode; a survey with faults is the experience of a robot that has them, for
-`learn_atg`. A trial's outcome is the cube's discrete state
-(MODEL.md: up face x 45-deg yaw step, relative to the true base) after the skill has ended
-and the cube has settled; `abp_sim_bridge.mujoco_world.discrete_state` rounds the pose.
+planned once per worker at the nominal cube centre (the skills' `manipulation_distance`,
+0, 0.05) m in base_link (where the base approach puts the cube, so no base motion), and
+the cube really stands `--pos-jitter` (+-1 cm, uniform in x and y) and `--yaw-jitter-deg`
+(+-3 deg) off that: the randomised start doubles as a cube-estimate error of that size.
+The cube-floor friction (cube and floor coefficients together) and the hand-pad friction
+(sliding and torsional) are scaled independently by uniform factors in 1 +-
+`--friction-jitter` (20 %). ORBIT plans at the cube's true centre, and the world's
+odometry noise (`--orbit-noise`, sigma_m sigma_rad per base motion; default the graph
+benchmark's fault setting) displaces the true base at the end of each base motion, unseen
+by odometry. `--faults` adds the graph benchmark's contact faults: each manual trial draws
+a slipping grasp (hands 1 cm further out) and a missed push (10 cm out), each with
+probability 0.1, as the sim bridge's MuJoCo world draws them per contact episode; a survey
+with faults is the experience of a robot that has them, for `learn_atg`. A trial's outcome
+is the cube's discrete state (MODEL.md: up face x 45-deg yaw step, relative to the true
+base) after the skill has ended and the cube has settled;
+`abp_sim_bridge.mujoco_world.discrete_state` rounds the pose.
 
 **Symmetry classes.** The world is the robot, a floor and a box whose only asymmetry is the
 heavy slab: the box is invariant under the cube group, and the slab (square, centred on its
@@ -80,8 +81,10 @@ from abp_belief.cube import (
     apply_rotation,
 )
 from abp_description.frames import axis_angle_deg, rot_z_deg
+from abp_skills.plans import SkillConfig
 
-NOMINAL_CENTRE = (0.40, 0.0, 0.05)     # m, base_link: the skills' plan and the cube's mean
+# m, base_link: the skills' plan and the cube's mean (where the base approach puts the cube)
+NOMINAL_CENTRE = (SkillConfig.manipulation_distance, 0.0, SkillConfig.cube_size / 2)
 DIFF_THRESHOLD = 0.10                  # a flagged cell differs by more than this anywhere
 GOAL_UNIFORM_NOMINAL = 0.95
 FAULT_RATE = 0.1                       # --faults: graph_benchmark's p_slip_grasp, p_missed_push

@@ -105,7 +105,11 @@ class SkillConfig:
     check_stride: int = 2              # collision-check every n-th trajectory sample
     feasibility_check_stride: int = 2  # the same for feasibility answers, on a 0.1 s grid
     base_approach: bool = True         # manual skills first drive to manipulation_distance
-    manipulation_distance: float = 0.40  # m, cube centre from base_link for PUSH/LIFT/FLIP
+    # m, cube centre from base_link for PUSH/LIFT/FLIP. The middle of the distances where
+    # all three plans clear the body (0.41-0.51 m within 5 deg of straight ahead; closer,
+    # an upper arm passes the chassis within collision_margin), so that the approach's
+    # landing error (OrbitTracker's 2 cm) and approach_tolerance stay inside it.
+    manipulation_distance: float = 0.45
     max_base_approach: float = 0.35    # m, the furthest a manual skill drives to get there
     approach_tolerance: float = 0.03   # m; and bearing 5 deg: closer needs no base motion
     orbit_min_radius: float = 0.30     # m (turning in place must clear the cube)

@@ -18,9 +18,9 @@ from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
-from abp_common.qos import reliable  # noqa: E402
+from abp_common.qos import LATCHED_READER, reliable  # noqa: E402
 from abp_msgs.action import Recognize  # noqa: E402
-from abp_msgs.msg import ExecutedAction, PlanStep  # noqa: E402
+from abp_msgs.msg import Belief, ExecutedAction, PlanStep  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 WORLD = REPO / 'tests' / 'helpers' / 'model_world_node.py'
@@ -75,9 +75,28 @@ def client(rclpy_context):
     node.destroy_node()
 
 
+def belief_has_observed(executor, spin, timeout=60):
+    """True once the belief node has taken an observation from the world (a belief at step
+    >= 1; latched, so one taken before this subscription matched counts too). The world
+    starts last, and under load DDS can take seconds to match the belief node's
+    subscription to its publisher; a goal sent before then would wait out the planner's
+    5 s observation timeout (seen once with two busy loops beside the suite: 26
+    observations reached the planner, none the belief node)."""
+    node = executor.get_nodes()[0]
+    beliefs = []
+    subscription = node.create_subscription(Belief, '/abp/belief', beliefs.append,
+                                            LATCHED_READER)
+    try:
+        return spin(executor, lambda: any(b.step >= 1 for b in beliefs), timeout)
+    finally:
+        node.destroy_subscription(subscription)
+
+
 def send_goal(executor, action_client, spin, answering, goal, feedback=None):
-    """Send `goal` once the server answers; returns the accepted goal's handle."""
+    """Send `goal` once the server answers and the belief node has seen the world;
+    returns the accepted goal's handle."""
     assert answering(executor, action_client, 30), 'no /abp/recognize server'
+    assert belief_has_observed(executor, spin), 'the belief node took no observation'
     send = action_client.send_goal_async(
         goal, feedback_callback=(lambda m: feedback.append(m.feedback)) if feedback is not None
         else None)

@@ -72,6 +72,10 @@ READY_ARM = (-0.9, 0.25, 0.0, -1.0)
 READY_TORSO = 0.3
 
 
+# A cube off straight ahead by more than this makes a manual skill turn the base first.
+APPROACH_BEARING_TOLERANCE = np.radians(5.0)
+
+
 @dataclass
 class SkillConfig:
     """Geometry and motion parameters of the skills (the node's ROS parameters)."""
@@ -586,7 +590,7 @@ class SkillPlanner:
         bearing = float(np.arctan2(c[1], c[0]))
         needed = cfg.base_approach and (abs(dist - cfg.manipulation_distance)
                                         > cfg.approach_tolerance
-                                        or abs(bearing) > np.radians(5.0))
+                                        or abs(bearing) > APPROACH_BEARING_TOLERANCE)
         if not needed:
             return False, True, '', c
         if abs(dist - cfg.manipulation_distance) > cfg.max_base_approach:
@@ -614,5 +618,6 @@ class SkillPlanner:
 
 
 
-__all__ = ['ACTIONS', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS', 'ORBIT_ANGLES_DEG', 'PHASES',
-           'Phase', 'PlanError', 'SkillConfig', 'SkillPlan', 'SkillPlanner']
+__all__ = ['ACTIONS', 'APPROACH_BEARING_TOLERANCE', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS',
+           'ORBIT_ANGLES_DEG', 'PHASES', 'Phase', 'PlanError', 'SkillConfig', 'SkillPlan',
+           'SkillPlanner']

@@ -6,7 +6,14 @@ import pytest
 
 from abp_description.controllers import BODY_JOINTS
 from abp_description.kinematics import RobotKinematics
-from abp_skills.plans import ACTIONS, PHASES, SkillConfig, SkillPlanner
+from abp_skills.base_motion import OrbitTracker
+from abp_skills.plans import (
+    ACTIONS,
+    APPROACH_BEARING_TOLERANCE,
+    PHASES,
+    SkillConfig,
+    SkillPlanner,
+)
 
 CUBE = np.array([0.40, 0.0, 0.05])
 H = 0.05  # half edge
@@ -193,10 +200,10 @@ def test_manual_plans_clear_the_body_wherever_the_approach_leaves_the_cube(plann
     1-3 cm closer in: FLIPs refused in an end-to-end run, and the episode ran out of
     actions on an undecided eccentric twin.)"""
     cfg = planner.config
-    slack = max(cfg.approach_tolerance, 0.02)
+    slack = max(cfg.approach_tolerance, OrbitTracker.position_tolerance)
     for dist in (cfg.manipulation_distance - slack, cfg.manipulation_distance,
                  cfg.manipulation_distance + slack):
-        for bearing in np.radians([-5.0, 0.0, 5.0]):
+        for bearing in (-APPROACH_BEARING_TOLERANCE, 0.0, APPROACH_BEARING_TOLERANCE):
             cube = np.array([dist * np.cos(bearing), dist * np.sin(bearing), 0.05])
             plan = planner.plan(skill, planner.home(look=cube), cube)
             assert plan.ok, (skill, dist, np.degrees(bearing), plan.reason)

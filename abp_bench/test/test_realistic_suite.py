@@ -69,3 +69,14 @@ def test_update_doc_keeps_the_two_perception_sections_apart(tmp_path):
     assert 'standard v2' in text and 'realistic v2' in text and 'planner' in text
     assert 'realistic v1' not in text and '\nstandard\n' not in text
     assert text.count('## Perception under realistic conditions') == 1
+
+
+def test_aspect_verdict_tells_a_missed_tag_from_a_wrong_one():
+    truth = (3, 1, 6, 5)
+    assert realistic_suite.aspect_verdict(None, truth) == 'none'
+    assert realistic_suite.aspect_verdict((3, 1, 6, 5), truth) == 'top-1'
+    assert realistic_suite.aspect_verdict((3, 1, 6, -1), truth) == 'partial'
+    assert realistic_suite.aspect_verdict((3, -1, 6, -1), truth) == 'partial'
+    assert realistic_suite.aspect_verdict((3, 1, 5, 6), truth) == 'wrong'    # mirrored
+    assert realistic_suite.aspect_verdict((2, 1, 6, -1), truth) == 'wrong'   # wrong type
+    assert realistic_suite.aspect_verdict((3, 1, 4, -1), truth) == 'wrong'   # wrong tag

@@ -189,6 +189,40 @@ def markdown_table(summaries: dict, labels, planners) -> str:
     return '\n'.join(lines)
 
 
+def object_families(model_set) -> list[str]:
+    """Per model: 'visual only' (no other model has its faces), or, in a family of mass
+    twins (same faces), 'twin family, uniform' or 'twin family, eccentric'. A uniform
+    member has to rule out every twin by what the cube does, a visual-only one needs
+    only its tags."""
+    faces = np.asarray(model_set.faces)
+    _, family, size = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
+    twins = size[family.reshape(-1)] > 1
+    uniform = np.asarray(model_set.mass) == 0
+    return np.where(~twins, 'visual only', np.where(uniform, 'twin family, uniform',
+                                                     'twin family, eccentric')).tolist()
+
+
+def family_table(results: dict, labels, planners, seed: int) -> str | None:
+    """Accuracy and mean actions per object family (`object_families`), for the model sets
+    that have mass twins; None when none has."""
+    lines = ['| \\|M\\| | Method | family | trials | accuracy | mean actions |',
+             '|---|---|---|---:|---:|---:|']
+    for label in labels:
+        families = object_families(build_model_set(label, seed))
+        if set(families) == {'visual only'}:
+            continue
+        for name in planners:
+            trials = results.get((label, name), [])
+            for family in ('visual only', 'twin family, uniform', 'twin family, eccentric'):
+                sel = [t for t in trials if families[t['true_model']] == family]
+                if sel:
+                    accuracy = 100.0 * sum(bool(t['correct']) for t in sel) / len(sel)
+                    actions = float(np.mean([t['num_actions'] for t in sel]))
+                    lines.append(f'| {label} | {name} | {family} | {len(sel)} | '
+                                 f'{accuracy:.1f}% | {actions:.2f} |')
+    return '\n'.join(lines) if len(lines) > 2 else None
+
+
 def plot_traces(results: dict, labels, planners, path: str, max_actions: int) -> None:
     """Correct-object belief vs action step (mean and a ±1 std band), like Fig. 3.
     A trial that stopped early keeps its last belief for the remaining steps."""
@@ -431,6 +465,10 @@ def main(argv=None) -> int:
           f"planning budget {args.planning_budget_s} s"
           f"{'; refused ' + ' '.join(args.refuse) if args.refuse else ''}; tables: belief "
           f"{args.belief_models or 'hand-written'}, world {args.world_models or 'same'})")
+    by_family = family_table(results, args.models, args.planners, args.seed)
+    if by_family:
+        print('\nBy object family (mass twins share their faces):\n')
+        print(by_family)
     curves = {}
     if args.stop_curve:
         ratio = fault_likelihood_ratio()

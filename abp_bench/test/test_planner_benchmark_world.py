@@ -84,3 +84,21 @@ def test_learning_curve_runs(tmp_path):
     assert [p['n'] for p in result['points']] == [1, 2]
     assert (tmp_path / 'out' / 'learning_curve.png').stat().st_size > 0
     assert 'LIFT' in (tmp_path / 'out' / 'learned_vs_hand.md').read_text()
+
+
+def test_results_split_by_object_family_on_the_robot_set(tmp_path, capsys):
+    robot = population.robot_set(seed=0)
+    families = planner_benchmark.object_families(robot)
+    # 18 visual cubes, two of them with their 6 eccentric twins.
+    assert families.count('visual only') == 16
+    assert families.count('twin family, uniform') == 2
+    assert families.count('twin family, eccentric') == 12
+    trials = _run(tmp_path)
+    out = capsys.readouterr().out
+    assert 'By object family' in out
+    for family in set(families[t['true_model']] for t in trials):
+        n = sum(families[t['true_model']] == family for t in trials)
+        assert f'| robot | abp | {family} | {n} |' in out
+    uniform_only = population.random_visual_subset(30, seed=0)
+    assert set(planner_benchmark.object_families(uniform_only)) == {'visual only'}
+    assert planner_benchmark.family_table({('30', 'abp'): trials}, ['30'], ['abp'], 0) is None

@@ -52,12 +52,13 @@ def test_mujoco_world_publishes_state_images_and_follows_a_trajectory(ros_proces
     found = set() if ids is None else set(ids.ravel().tolist())
     assert found == {TAGS[4], TAGS[1]}, found  # top and front, as the state says
 
-    # A head trajectory, stamped 1 s of simulation time ahead, moves the pan joint.
+    # A head trajectory, stamped ahead in simulation time, moves the pan joint.
     pub = t.node.create_publisher(JointTrajectory, '/head_controller/joint_trajectory', 10)
     assert t.spin_until(lambda: pub.get_subscription_count() > 0, 10)
     last = t.last('joint_states')
     pan0 = last.position[last.name.index('head_pan_joint')]
-    start = ns(last.header.stamp) + 1_000_000_000
+    # 3 s of simulation time ahead (1.5 s of wall time): it must arrive before it starts.
+    start = ns(last.header.stamp) + 3_000_000_000
     traj = JointTrajectory(joint_names=['head_pan_joint'])
     traj.header.stamp = to_time(start)
     traj.points = [JointTrajectoryPoint(positions=[pan0 + 0.4],

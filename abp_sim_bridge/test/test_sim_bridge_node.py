@@ -352,9 +352,10 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
         raise AssertionError(f'no joint state at t={time_s:.3f}')
 
     now = ns(t.last('joint_states').header.stamp)
-    # 3 s of simulation time ahead (0.75 s of wall time): the last joint state received
-    # may lag the simulation on a busy machine, and the trajectory must arrive before it starts.
-    start = now + 3_000_000_000
+    # 8 s of simulation time ahead (2 s of wall time): the last joint state received
+    # may lag the simulation on a busy machine, and the trajectory must arrive before it
+    # starts (the bridge's simulation thread holds the GIL most of the time).
+    start = now + 8_000_000_000
     traj = JointTrajectory()
     traj.header.stamp = to_time(start)
     traj.joint_names = ['head_tilt_joint', 'head_pan_joint']  # not the controller's order
@@ -487,8 +488,9 @@ def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processe
                                                             tester_factory):
     """Uniform + the 6 heavy faces: the cube stands with body +z up and body +x away from
     the robot, so the six heavy faces point in all six V directions."""
+    # max_stamp_future above the 40 s lead of the trajectories' start stamp (below).
     proc = start_bridge(ros_processes, world='rules', speedup=20.0, camera_rate=0.0,
-                        ground_truth_rate=10.0,
+                        ground_truth_rate=10.0, max_stamp_future=60.0,
                         face_tags=str(TAGS).replace(' ', ''), mass_index=0)
     t = tester_factory('ground_truth')
     plan = hand_path(action, cube_xy=(0.40, 0.0), ik=DlsIK())
@@ -516,8 +518,12 @@ def test_manual_actions_follow_model_physics_for_every_mass(action, ros_processe
         assert start.state == expected_state('PUSH', 0, rel)  # slide = the initial state
         # One common start stamp for the three controllers (zero stamps would start each
         # on its own receipt, ticks apart at this speed-up, and the hands would not meet).
-        # 4 s of simulation time ahead (0.2 s of wall time) so that all three arrive first.
-        begin = ns(start.header.stamp) + 4_000_000_000
+        # All three must arrive before it: a late one starts part-way along its path (the
+        # follower's first segment catches up from the state at receipt) and the hand
+        # misses the cube. 40 s of simulation time ahead = 2 s of wall time; 0.2 s was not
+        # always enough for the bridge, whose simulation thread holds the GIL at 20x,
+        # on 2 cores shared with two busy loops (fresh-clone run 1 of 73a2934: no contact).
+        begin = ns(start.header.stamp) + 40_000_000_000
         for controller, msg in msgs.items():
             msg.header.stamp = to_time(begin)
             pubs[controller].publish(msg)

@@ -117,8 +117,11 @@ cleanup() {
   # A second Ctrl-C (or a signal to the whole group) must not cut the clean-up short.
   trap - EXIT
   trap '' INT TERM
+  # Whoever read our output may be gone (a killed driver): a write to the broken pipe
+  # must not kill this shell before it has stopped the nodes.
+  trap '' PIPE
   if [ ${#pids[@]} -gt 0 ]; then
-    echo "[start_graph] stopping ${#pids[@]} processes"
+    { echo "[start_graph] stopping ${#pids[@]} processes"; } 2>/dev/null || true
     # SIGINT first (the client cancels its goal on it); SIGTERM after 2 s for a process
     # that inherited SIGINT ignored (started in the background of a non-interactive shell).
     kill -INT "${pids[@]}" 2>/dev/null || true

@@ -20,26 +20,29 @@ import subprocess
 import pytest
 
 from abp_belief.population import robot_set
+from tests.helpers.graph import graph_processes, run_to_end, stop_group
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 SEED = 1
+# start_graph.sh's own deadline for the Recognize goal; the test's (pytest-timeout) is
+# longer, so that a slow episode fails with its trace and its graph stopped.
+EPISODE_TIMEOUT_S = 480
 MANUAL = {'PUSH', 'LIFT', 'FLIP'}
 
 
 def run_episode(tmp_path, object_index, extra=()):
     result_file = tmp_path / f'result-{object_index}.json'
     log_dir = tmp_path / f'logs-{object_index}'
-    proc = subprocess.run(
+    code, trace, _ = run_to_end(
         [str(REPO / 'scripts' / 'start_graph.sh'), '--seed', str(SEED), '--object',
          str(object_index), '--result-json', str(result_file), '--log-dir', str(log_dir),
-         '--timeout', '600', *extra],
-        capture_output=True, text=True, timeout=900, start_new_session=True)
-    trace = proc.stdout + proc.stderr
-    if proc.returncode != 0 or not result_file.exists():
+         '--timeout', str(EPISODE_TIMEOUT_S), *extra],
+        EPISODE_TIMEOUT_S + 60, tmp_path / f'output-{object_index}.txt')
+    if code != 0 or not result_file.exists():
         # pytest keeps only the last few tmp dirs: the nodes' logs go into the report.
         trace += node_log_tails(log_dir)
     assert result_file.exists(), trace
-    return proc.returncode, json.loads(result_file.read_text()), trace
+    return code, json.loads(result_file.read_text()), trace
 
 
 def node_log_tails(log_dir, lines=30):
@@ -55,6 +58,7 @@ def twin_with_mass(models, mass_name):
     return next(i for i, name in enumerate(models.names) if name.endswith('/' + mass_name))
 
 
+@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
 @pytest.mark.parametrize('world, mass, namespace', [
     ('rules', 'u', 'robot1'), ('rules', 'm+z', ''), ('rules', 'm+y', ''), ('mujoco', 'u', '')])
 def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, world, mass, namespace):
@@ -82,6 +86,7 @@ def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, world, mass
     assert not graph_processes(), 'start_graph.sh left processes behind'
 
 
+@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
 def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp_path):
     models = robot_set(seed=SEED)
     index = next(i for i in range(models.num_models) if models.mass[i] == 0)
@@ -89,7 +94,7 @@ def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp
     graph = subprocess.Popen(
         [str(REPO / 'scripts' / 'start_graph.sh'), '--no-build', '--world', 'rules', '--seed',
          str(SEED), '--object', str(index), '--result-json', str(result_file), '--log-dir',
-         str(log_dir), '--timeout', '600'],
+         str(log_dir), '--timeout', str(EPISODE_TIMEOUT_S)],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
         trace = []
@@ -102,10 +107,10 @@ def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp
         assert len(belief) == 1, ''.join(trace)
         os.kill(belief[0], signal.SIGKILL)
         trace += graph.stdout.readlines()
-        graph.wait(timeout=900)
+        graph.wait(timeout=EPISODE_TIMEOUT_S + 60)
     finally:
         if graph.poll() is None:
-            os.killpg(graph.pid, signal.SIGKILL)
+            stop_group(graph)
     trace = ''.join(trace)
     assert graph.returncode == 0, trace
     assert 'belief exited with code 137; restarting it (restart 1)' in trace
@@ -114,19 +119,3 @@ def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp
     result = json.loads(result_file.read_text())
     assert result['correct'] and result['object_id'] == models.names[index], trace
     assert not graph_processes(), 'start_graph.sh left processes behind'
-
-
-def graph_processes(with_pids=False):
-    """abp executables still running on this test session's ROS domain."""
-    domain = f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}".encode()
-    found = []
-    for proc in pathlib.Path('/proc').glob('[0-9]*'):
-        try:
-            cmdline = (proc / 'cmdline').read_bytes()
-            environ = (proc / 'environ').read_bytes()
-        except OSError:
-            continue
-        if b'/install/abp_' in cmdline and domain in environ.split(b'\0'):
-            text = cmdline.replace(b'\0', b' ').decode(errors='replace')
-            found.append((int(proc.name), text) if with_pids else text)
-    return found

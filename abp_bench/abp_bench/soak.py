@@ -25,6 +25,7 @@ environment, inherited by the graph. Exit code 0 when every check held, 1 otherw
 """
 
 import argparse
+import ctypes
 import json
 import os
 import pathlib
@@ -118,6 +119,16 @@ def rss_kib(pids):
     return total
 
 
+PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h)
+
+
+def _terminate_with_parent():
+    """In the child before exec: SIGTERM when the driver dies, however it dies (a SIGKILL,
+    a test's timeout), so that start_graph.sh's trap stops the graph rather than leave it
+    running on the domain."""
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+
+
 class Graph:
     """`start_graph.sh --serve` as a child process; its output is kept and scanned for the
     supervisor's restart lines."""
@@ -137,7 +148,8 @@ class Graph:
         self.restarts = []  # (node name, monotonic time)
         self._lock = threading.Lock()
         self.proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                     text=True, start_new_session=True)
+                                     text=True, start_new_session=True,
+                                     preexec_fn=_terminate_with_parent)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 

@@ -15,6 +15,7 @@ import queue
 import threading
 import time
 
+from action_msgs.msg import GoalStatus
 from rclpy.action import ActionClient
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration
@@ -27,6 +28,9 @@ from abp_msgs.msg import ExecutedAction
 
 # While a skill runs: how often to check that the server that took the goal is still there.
 SERVER_CHECK_S = 1.0
+# For reasons: GoalStatus value -> 'aborted', 'canceled', ...
+STATUS_NAMES = {getattr(GoalStatus, name): name[len('STATUS_'):].lower()
+                for name in dir(GoalStatus) if name.startswith('STATUS_')}
 
 SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 # Planner action name -> (skill on abp/skills/<skill>, its goal).
@@ -127,7 +131,13 @@ class SkillClients:
         if response is None:
             return False, f'{skill} result lost', (clock.now() - started).to_msg()
         result = response.result
-        return bool(result.success), result.reason, result.duration
+        reason = result.reason
+        if not result.success and not reason:
+            # Our servers always give a reason; an empty one is a result the action
+            # layer made up (e.g. for a goal its server no longer knew): say so.
+            status = STATUS_NAMES.get(response.status, response.status)
+            reason = f'{skill} ended with goal status {status} and no reason'
+        return bool(result.success), reason, result.duration
 
     def _status_publishers(self, skill):
         topic = names.absolute(names.skill_action(skill), self._node.get_namespace()) + \

@@ -28,6 +28,7 @@ setup(
             'outcome_survey = abp_bench.outcome_survey:main',
             'mujoco_benchmark = abp_bench.mujoco_benchmark:main',
             'atg_learning_curve = abp_bench.atg_learning_curve:main',
+            'episode_trace = abp_bench.episode_trace:main',
             'soak = abp_bench.soak:main',
             'transport_benchmark = abp_bench.transport_benchmark:main',
         ],

@@ -1,7 +1,7 @@
 """`graph_benchmark`: recognition episodes through the real graph in simulation.
 
     graph_benchmark --episodes 20 [--world mujoco|rules] [--faults] [--models robot]
-                    [--planner cost] [--seed S] [--json FILE] [--no-build]
+                    [--planner cost] [--seed S] [--json FILE] [--no-build] [--record DIR]
 
 Each episode is one `scripts/start_graph.sh` run (every node its own process,
 over DDS) with a seeded hidden cube from the model set; the result is compared
@@ -11,7 +11,8 @@ and missed pushes, 10% missed tags per frame, 2 distractor tags and orbit odomet
 (in the MuJoCo world slips and misses are hand offsets drawn per contact, see
 docs/SIM_BRIDGE.md). A probe subscribed to /camera/image_raw and /abp/belief measures
 the wall-clock latency from an image to the belief update it caused (matched by header
-stamp).
+stamp). --record DIR keeps one rosbag2 bag per episode (DIR/episode-NN-object-I) and
+DIR/labels.yaml (bag -> true object): the input of `episode_trace` and `learn_atg --bags`.
 Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
 """
 
@@ -33,9 +34,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 
-from abp_belief.population import model_set_from_config
 from abp_common import names, qos
 from abp_msgs.msg import AspectObservation, Belief
+
+from .episode_trace import model_set_of
 
 FAULTS_YAML = """/**/sim_bridge:
   ros__parameters:
@@ -123,18 +125,23 @@ def parse_args(argv):
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--timeout', type=float, default=900.0, help='per episode, wall s')
     parser.add_argument('--json', default='')
+    parser.add_argument('--record', metavar='DIR', default='',
+                        help='record each episode to a bag in DIR (a new or empty directory) '
+                        'and write DIR/labels.yaml')
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error('--episodes must be >= 1')
     return args
 
 
-def model_count(models, seed):
-    if os.path.isfile(models):  # a model file, as start_graph.sh --models path/to/models.npz
-        return model_set_from_config(model_file=models).num_models
-    if models.startswith('random:'):
-        return model_set_from_config('random', int(models.split(':')[1]), seed=seed).num_models
-    return model_set_from_config(models, seed=seed).num_models
+def record_dir(path):
+    """DIR of --record, made if needed; refused if it holds anything (rosbag2 never
+    overwrites a bag, and a stale labels file would mislabel the new bags)."""
+    record = pathlib.Path(path)
+    if record.exists() and (not record.is_dir() or any(record.iterdir())):
+        raise SystemExit(f'graph_benchmark: --record {record} must be a new or empty directory')
+    record.mkdir(parents=True, exist_ok=True)
+    return record.resolve()
 
 
 def stop_graph(proc):
@@ -148,7 +155,7 @@ def stop_graph(proc):
         proc.wait()
 
 
-def run_episode(args, index, workdir, params_file):
+def run_episode(args, index, workdir, params_file, bag=None):
     result_file = workdir / f'episode-{index}.json'
     cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--world', args.world,
            '--models', args.models,
@@ -159,6 +166,8 @@ def run_episode(args, index, workdir, params_file):
         cmd += ['--params', str(params_file)]
     if args.no_build:
         cmd += ['--no-build']
+    if bag is not None:
+        cmd += ['--record', str(bag)]
     started = time.monotonic()
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
@@ -223,9 +232,12 @@ def main(argv=None):
     # running graph first (even when started with SIGINT ignored, e.g. by `nohup`).
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
-    count = model_count(args.models, args.seed)
+    model_names = model_set_of(args.models, args.seed).names
+    count = len(model_names)
     objects = np.random.default_rng(args.seed).choice(count, size=args.episodes,
                                                       replace=args.episodes > count)
+    record = record_dir(args.record) if args.record else None
+    labels = []
     probe = LatencyProbe()
     results = []
     with tempfile.TemporaryDirectory(prefix='abp-graph-bench-') as tmp:
@@ -237,8 +249,13 @@ def main(argv=None):
         try:
             for number, index in enumerate(objects, 1):
                 probe.new_episode()
-                result = run_episode(args, int(index), workdir, params_file)
+                bag = record / f'episode-{number:02d}-object-{index}' if record else None
+                result = run_episode(args, int(index), workdir, params_file, bag)
                 results.append(result)
+                if bag is not None and bag.exists():
+                    # Written after every episode, so that an interrupted run keeps its labels.
+                    labels.append(f'{bag.name}: {model_names[int(index)]}')
+                    (record / 'labels.yaml').write_text('\n'.join(labels) + '\n')
                 print(f'[{number}/{args.episodes}] object {index}: {verdict(result)} '
                       f"{result.get('object_id', '-')} (truth {result.get('ground_truth', '-')}) "
                       f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",

@@ -44,6 +44,14 @@ def test_sim_bridge_benchmark_in_process(capsys, one_cv_thread):
     assert 'simulation tick' in capsys.readouterr().out
 
 
+def test_graph_benchmark_records_into_a_new_or_empty_directory_only(tmp_path):
+    assert graph_benchmark.record_dir(tmp_path / 'new' / 'bags') == (tmp_path / 'new' / 'bags')
+    assert graph_benchmark.record_dir(tmp_path / 'new' / 'bags').is_dir()  # empty: fine
+    (tmp_path / 'new' / 'bags' / 'labels.yaml').write_text('old: c0-1-2-3-4-5/u\n')
+    with pytest.raises(SystemExit, match='must be a new or empty directory'):
+        graph_benchmark.record_dir(tmp_path / 'new' / 'bags')
+
+
 def test_graph_benchmark_summary_table():
     args = graph_benchmark.parse_args(['--episodes', '2'])
     results = [dict(correct=True, success=True, hung=False, actions=2, elapsed_s=40.0,

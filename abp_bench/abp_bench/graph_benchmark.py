@@ -17,6 +17,7 @@ Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
 """
 
 import argparse
+import ctypes
 import json
 import os
 import pathlib
@@ -144,14 +145,27 @@ def record_dir(path):
     return record.resolve()
 
 
+PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h)
+# Looked up here, not in the child: a forked child of a threaded process must not dlopen.
+_PRCTL = ctypes.CDLL(None, use_errno=True).prctl
+
+
+def terminate_with_parent():
+    """In the child before exec: SIGTERM when the driver dies, however it dies (a SIGKILL, a
+    test's timeout), so that start_graph.sh's trap stops the graph rather than leave it
+    running on the domain."""
+    _PRCTL(PR_SET_PDEATHSIG, int(signal.SIGTERM))
+
+
 def stop_graph(proc):
-    """SIGTERM lets start_graph.sh stop its nodes (SIGKILL would orphan them; SIGINT is
-    ignored by scripts started in the background of a non-interactive shell)."""
+    """SIGTERM lets start_graph.sh stop its nodes (SIGINT is ignored by scripts started in
+    the background of a non-interactive shell); if it has not ended within 60 s (a loaded
+    machine), SIGKILL to its whole process group, so that no node is orphaned."""
     proc.send_signal(signal.SIGTERM)
     try:
-        proc.wait(timeout=30)
+        proc.wait(timeout=60)
     except subprocess.TimeoutExpired:
-        proc.kill()
+        os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
 
 
@@ -169,7 +183,9 @@ def run_episode(args, index, workdir, params_file, bag=None):
     if bag is not None:
         cmd += ['--record', str(bag)]
     started = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    # Its own session: stop_graph can kill the whole graph without killing this process.
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            start_new_session=True, preexec_fn=terminate_with_parent)
     try:
         proc.wait(timeout=args.timeout + 120)
     except subprocess.TimeoutExpired:

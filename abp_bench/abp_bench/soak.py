@@ -25,7 +25,6 @@ environment, inherited by the graph. Exit code 0 when every check held, 1 otherw
 """
 
 import argparse
-import ctypes
 import json
 import os
 import pathlib
@@ -55,7 +54,7 @@ from abp_common.server_handshake import wait_until_answering
 from abp_msgs.action import Recognize
 from abp_msgs.msg import ExecutedAction, SimGroundTruth
 
-from .graph_benchmark import FAULTS_YAML, repo_root
+from .graph_benchmark import FAULTS_YAML, repo_root, terminate_with_parent
 
 # The graph's long-running nodes: node name -> (package, executable).
 GRAPH_NODES = {
@@ -119,16 +118,6 @@ def rss_kib(pids):
     return total
 
 
-PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h)
-
-
-def _terminate_with_parent():
-    """In the child before exec: SIGTERM when the driver dies, however it dies (a SIGKILL,
-    a test's timeout), so that start_graph.sh's trap stops the graph rather than leave it
-    running on the domain."""
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM))
-
-
 class Graph:
     """`start_graph.sh --serve` as a child process; its output is kept and scanned for the
     supervisor's restart lines."""
@@ -149,7 +138,7 @@ class Graph:
         self._lock = threading.Lock()
         self.proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, start_new_session=True,
-                                     preexec_fn=_terminate_with_parent)
+                                     preexec_fn=terminate_with_parent)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 

@@ -8,7 +8,7 @@ over DDS) with a seeded hidden cube from the model set; the result is compared
 with the sim's ground truth, in the sim bridge's `--world` (mujoco: MuJoCo physics
 and camera; rules: contact rules and flat renderer). --faults injects 10% grasp slips
 and missed pushes, 10% missed tags per frame, 2 distractor tags and orbit odometry noise
-(in the MuJoCo world slips and misses are hand offsets drawn per contact, see
+(in the MuJoCo world slips and misses are hand offsets drawn per manual action, see
 docs/SIM_BRIDGE.md). A probe subscribed to /camera/image_raw and /abp/belief measures
 the wall-clock latency from an image to the belief update it caused (matched by header
 stamp). --record DIR keeps one rosbag2 bag per episode (DIR/episode-NN-object-I) and

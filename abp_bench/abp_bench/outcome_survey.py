@@ -20,7 +20,7 @@ odometry noise (`--orbit-noise`, sigma_m sigma_rad per base motion; default the 
 benchmark's fault setting) displaces the true base at the end of each base motion, unseen
 by odometry. `--faults` adds the graph benchmark's contact faults: each manual trial draws
 a slipping grasp (hands 1 cm further out) and a missed push (10 cm out), each with
-probability 0.1, as the sim bridge's MuJoCo world draws them per contact episode; a survey
+probability 0.1, as the sim bridge's MuJoCo world draws them per manual action; a survey
 with faults is the experience of a robot that has them, for `learn_atg`. A trial's outcome
 is the cube's discrete state (MODEL.md: up face x 45-deg yaw step, relative to the true
 base) after the skill has ended and the cube has settled;

@@ -307,7 +307,7 @@ class MujocoWorld(CommandInputs):
 
     def set_grasp_opening(self, opening):
         """Hold each hand `opening` m outwards of its commanded path from now on (a fault
-        drawn per contact episode; settings.grasp_opening is the start value)."""
+        drawn per manual action; settings.grasp_opening is the start value)."""
         self._grasp_opening = float(opening)
         self._offsets = self._set_point_offsets()
 

@@ -14,8 +14,8 @@ face tags of this frame, -1 = a missed tag, scenario.drawn_tags) and `render(sna
 it later in the render thread; `close()` frees it (in the render thread: the MuJoCo
 renderer's GL context lives in the thread that rendered first).
 
-MuJoCo faults are drawn per contact episode (one manual action: from first touch to rest
-after release), for the next episode, when the world starts and after each episode:
+MuJoCo faults are drawn per manual action: afresh for every arm motion that starts out of
+contact (the trajectories of one skill phase, stamped together), never during a contact:
 with probability `p_slip_grasp` each hand is held `slip_grasp_opening` further outwards
 (the skills squeeze 5 mm: the grasp slips or holds on nothing); with probability
 `p_missed_push` each hand is held `missed_push_offset` further outwards (a push passes
@@ -25,10 +25,13 @@ counterpart (a push pivots the way the contact makes it).
 
 import numpy as np
 
+from abp_description.controllers import SIDES
 from abp_description.kinematics import look_at_world
 
 from .flat_renderer import ArcubeRenderer
 from .rules_world import make_rules_world
+
+ARM_CONTROLLERS = tuple(f'{side}_arm_controller' for side in SIDES)
 
 
 def initial_positions(config, kin):
@@ -105,13 +108,19 @@ def mujoco_world_class():
     from .mujoco_world import MujocoWorld, draw_contact_fault
 
     class FaultyMujocoWorld(MujocoWorld):
-        """MujocoWorld whose grasp opening is redrawn for every contact episode."""
+        """MujocoWorld whose grasp opening is drawn afresh for every arm motion that
+        starts out of contact (one draw per set of trajectories stamped together), so each
+        manual skill meets the fault probabilities anew. Drawn only after a contact, as it
+        was, a missed push (hands 10 cm out, so no contact) stayed drawn for the rest of
+        the episode: every later manual action missed the cube and reported success, which
+        reads as "no change" (graph_benchmark --faults, episode_trace)."""
 
         def __init__(self, *args, faults=None, fault_seed=0, **kw):
             super().__init__(*args, **kw)
             self._faults = faults
             self._base_opening = self.settings.grasp_opening
             self._fault_rng = np.random.default_rng([int(fault_seed), 12])
+            self._drawn_for_stamp = None
             self._draw_faults()
 
         def _draw_faults(self):
@@ -127,11 +136,13 @@ def mujoco_world_class():
                     '', 'fault drawn', f'next contact: {what}, hands {extra * 100:.1f} cm '
                     'further out')))
 
-        def step(self):
-            events = super().step()
-            if any(e.is_action or e.effect == 'grasp released' for e in events):
+        def set_trajectory(self, controller, joint_names, points, stamp_s=0.0):
+            # Never while a contact episode is open: the hands would jump mid-grasp.
+            if controller in ARM_CONTROLLERS and self._episode is None and \
+                    stamp_s != self._drawn_for_stamp:
+                self._drawn_for_stamp = stamp_s
                 self._draw_faults()
-            return events
+            return super().set_trajectory(controller, joint_names, points, stamp_s)
 
     return FaultyMujocoWorld
 

@@ -136,3 +136,34 @@ def test_a_grasp_opening_moves_the_hands_but_not_the_joint_readings(kin):
     def hand_gap(hands):
         return np.linalg.norm(hands['left'] - hands['right'])
     assert hand_gap(world.hand_positions()) > hand_gap(before_hands) + 0.02
+
+
+def test_a_drawn_missed_push_does_not_outlive_the_manual_action(kin):
+    # The sim bridge's faulty world draws the hands' offset for every arm motion that starts
+    # out of contact. Drawn only after a contact, a missed push (no contact) stayed for the
+    # rest of the episode and every later manual action missed the cube.
+    from types import SimpleNamespace
+
+    from abp_sim_bridge.worlds import mujoco_world_class
+
+    faults = SimpleNamespace(p_slip_grasp=0.0, p_missed_push=0.5, slip_grasp_opening=0.01,
+                             missed_push_offset=0.10)
+    cube = CubeSpec(position=(0.45, 0.0, 0.05), rotation=R_UP[4])
+    q0, _ = look_at_world(kin, kin.neutral(), (0.0, 0.0, 0.0), cube.position)
+    world = mujoco_world_class()(cube, FACE_TAGS, MujocoSettings(initial_positions=tuple(q0)),
+                                 kin, faults=faults, fault_seed=3)
+    from abp_description.controllers import ARM_JOINTS
+    openings = []
+    for motion in range(12):   # arm motions in place: none touches the cube
+        stamp = world.time + 0.01
+        for side in ('left', 'right'):   # one motion = both arms' trajectories, one stamp
+            joints = list(ARM_JOINTS[side])
+            hold = np.array([q0[kin.joint_index(j)] for j in joints])
+            world.set_trajectory(f'{side}_arm_controller', joints,
+                                 [TrajectoryPoint(0.2, hold)], stamp)
+            openings.append(world.grasp_opening)
+        run(world, 0.3)
+    assert not world.hands_touching() and world.manual_actions == 0
+    per_motion = openings[1::2]
+    assert openings[0::2] == per_motion       # both arms of one motion: one draw
+    assert set(per_motion) == {0.0, 0.10}     # redrawn: misses come and go

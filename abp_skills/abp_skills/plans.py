@@ -194,6 +194,9 @@ class CubeFrame:
 class Phase:
     name: str
     trajectory: SampledTrajectory   # over BODY_JOINTS
+    # The hands press into the cube (a squeeze > 0): the faces stop the arms short of the
+    # commanded path, so the joints do not arrive at its end (contact_goal_tolerance).
+    pressing: bool = False
 
     @property
     def duration(self):
@@ -446,7 +449,8 @@ class SkillPlanner:
         close = self._path_move(q_open, {s: np.array([opened[s], grasp[s]]) for s in SIDES},
                                 'grasp')
         q_grasp = self._full(close.end, q_open)
-        return approach, Phase('contact', close), q_grasp, grasp, opened, hover
+        return (approach, Phase('contact', close, pressing=squeeze > 0), q_grasp, grasp,
+                opened, hover)
 
     def _opened(self, cube, held, squeeze):
         """{side: xyz}: the hands of `held` moved out along y_V to `approach_gap` clear of
@@ -483,7 +487,8 @@ class SkillPlanner:
         lower_t = self._path_move(q_up, {s: np.array([up[s], grasp[s]]) for s in SIDES},
                                   'place')
         q_down = self._full(lower_t.end, q_grasp)
-        stroke = Phase('stroke', SampledTrajectory.concat([raise_t, lower_t]))
+        stroke = Phase('stroke', SampledTrajectory.concat([raise_t, lower_t]),
+                       pressing=cfg.grasp_squeeze > 0)
         retreat = self._release(q_down, cube, grasp, q0, cube.centre, cfg.grasp_squeeze)
         phases = [approach, contact, stroke, retreat]
         obstacles = [cube.box()]
@@ -518,7 +523,8 @@ class SkillPlanner:
         place_t = self._path_move(q_rolled, {s: np.array([rolled[s], placed[s]])
                                              for s in SIDES}, 'put down')
         q_placed = self._full(place_t.end, q_grasp)
-        stroke = Phase('stroke', SampledTrajectory.concat([roll_t, place_t]))
+        stroke = Phase('stroke', SampledTrajectory.concat([roll_t, place_t]),
+                       pressing=cfg.flip_squeeze > 0)
         retreat = self._release(q_placed, cube, placed, q0, cube.centre, cfg.flip_squeeze)
         phases = [approach, contact, stroke, retreat]
         obstacles = [cube.box()]

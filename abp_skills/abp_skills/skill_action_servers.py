@@ -175,13 +175,16 @@ class SkillActionServers:
                                progress_of(done_s / max(plan.duration, 1e-6)))
             self._sleep_period()
 
-    def _move(self, skill, goal_handle, started, name, trajectory, progress_of, limit_s=None):
-        """Send one phase trajectory and wait for it to end and the joints to arrive."""
+    def _move(self, skill, goal_handle, started, name, trajectory, progress_of, limit_s=None,
+              pressing=False):
+        """Send one phase trajectory and wait for it to end and the joints to arrive
+        (`pressing`: a phase whose hands press into the cube, contact_goal_tolerance)."""
         node = self.node
         t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'))
         feedback = FeedbackThrottle()
+        tolerance = node.param('contact_goal_tolerance' if pressing else 'goal_tolerance')
         arrival = ArrivalCheck(name, trajectory.joint_names, trajectory.end, trajectory.duration,
-                               node.param('goal_tolerance'), node.param('settle_timeout'))
+                               tolerance, node.param('settle_timeout'))
         idx = [node.kin.joint_index(n) for n in trajectory.joint_names]
         while True:
             stop = self._check_goal(goal_handle, started, limit_s)
@@ -262,7 +265,8 @@ class SkillActionServers:
         for phase in plan.phases:
             start = done
             stop = self._move(skill, goal_handle, started, phase.name, phase.trajectory,
-                              lambda f, s=start, d=phase.duration: (s + f * d) / total)
+                              lambda f, s=start, d=phase.duration: (s + f * d) / total,
+                              pressing=phase.pressing)
             if stop:
                 return self._retreat(skill, goal_handle, cube_base, stop)
             done += phase.duration

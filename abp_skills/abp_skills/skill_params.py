@@ -31,6 +31,11 @@ NODE_SPECS = (
               'Hz of the base control loop and of progress checks.', (1.0, 200.0)),
     ParamSpec('goal_tolerance', DOUBLE, 0.05,
               'rad: joints within this of a phase end count as arrived.', (0.001, 1.0)),
+    ParamSpec('contact_goal_tolerance', DOUBLE, 0.35,
+              "rad: the same for a phase that presses the hands into the cube (LIFT's "
+              'grasp and stroke): the faces stop the arms short of their commanded path, '
+              'the more so the further the cube is from where the plan put it.',
+              (0.001, 1.5)),
     ParamSpec('settle_timeout', DOUBLE, 2.0,
               'Seconds to wait for the joints (or the base) to arrive after a phase.',
               (0.0, 60.0)),

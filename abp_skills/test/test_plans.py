@@ -157,6 +157,15 @@ def test_grasp_clearance_is_checked_where_the_squeezing_hands_stop(planner):
     assert box.distance(np.array([CUBE + 0.8 * H * cube.x]))[0] == 0
 
 
+def test_only_the_phases_that_squeeze_the_cube_are_pressing(plans):
+    """The skill server checks a pressing phase's arrival with contact_goal_tolerance: the
+    faces stop the squeezing arms short of their path (in MuJoCo LIFT's grasp ended 0.04-
+    0.27 rad short, beyond goal_tolerance, so every LIFT of the closed loop aborted)."""
+    pressing = {skill: [p.name for p in plan.phases if p.pressing]
+                for skill, plan in plans.items()}
+    assert pressing == {'push': [], 'lift': ['contact', 'stroke'], 'flip': []}
+
+
 def test_plans_are_checked_for_self_collision(kin, planner, home, plans):
     idx = [kin.joint_index(n) for n in BODY_JOINTS]
     for plan in plans.values():

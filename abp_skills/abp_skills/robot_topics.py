@@ -10,6 +10,8 @@ publishes /cmd_vel and the JointTrajectory of every controller of
 relative (abp_common.names).
 """
 
+import time
+
 import numpy as np
 from builtin_interfaces.msg import Duration as DurationMsg
 from geometry_msgs.msg import Twist
@@ -55,6 +57,7 @@ class RobotInputs:
         if not any(self.node.kin.has_joint(n) for n in positions):
             raise Rejected('unknown_id', 'joint_states names no joint of the robot')
         self.node.state.set_joint_positions(positions)
+        self.node.clock_rate.feed(time.monotonic(), self.node.now())
 
     def _on_odom(self, msg):
         input_checks.odometry(msg)
@@ -123,10 +126,11 @@ class RobotCommands:
 
     def send_trajectory(self, trajectory, start_delay_s):
         """Send a SampledTrajectory over BODY_JOINTS to the four controllers at once, with
-        one common start stamp `start_delay_s` ahead (docs/INTERFACES.md: the controllers
-        then start together; 0 = zero stamp, start on receipt). Returns the start time
-        (node clock, s)."""
+        one common start stamp `start_delay_s` of wall time ahead, in clock time at the
+        clock's measured rate (docs/INTERFACES.md: the controllers then start together;
+        0 = zero stamp, start on receipt). Returns the start time (node clock, s)."""
         self.moved = True
+        start_delay_s *= self.node.clock_rate.rate()
         now = self.node.get_clock().now()
         start = now.nanoseconds * 1e-9 + start_delay_s
         stamp = (now + RclpyDuration(seconds=start_delay_s)).to_msg() if start_delay_s > 0 \

@@ -42,9 +42,11 @@ NODE_SPECS = (
     ParamSpec('claim_settle_time', DOUBLE, 0.2,
               'Seconds a new goal waits to detect a simultaneous goal in another skills '
               'process.', (0.0, 5.0)),
-    ParamSpec('trajectory_start_delay', DOUBLE, 0.1,
-              "Seconds ahead of now of the common header.stamp of the controllers' "
-              'trajectories; 0 = zero stamp (start on receipt).', (0.0, 5.0)),
+    ParamSpec('trajectory_start_delay', DOUBLE, 0.25,
+              "Wall-clock seconds ahead of now of the controllers' common header.stamp "
+              "(in clock time at the clock's measured rate: a simulator's speed-up); a "
+              'trajectory that arrives after its stamp starts part-way along its path. '
+              '0 = zero stamp (start on receipt).', (0.0, 5.0)),
     ParamSpec('orbit_radius', DOUBLE, 0.0,
               'Default ORBIT radius (m) when the goal gives none; 0 = keep the current '
               'distance (clamped to orbit_min_radius..orbit_max_radius).', (0.0, 5.0)),

@@ -60,6 +60,7 @@ from abp_common.parameters import declare_all, read_all
 from abp_common.qos import LATCHED, LATCHED_READER
 from abp_description.kinematics import RobotKinematics
 
+from .clock_rate import ClockRate
 from .feasibility_service import FeasibilityService
 from .plans import SkillPlanner
 from .robot_state import RobotState
@@ -93,6 +94,7 @@ class SkillsNode(ManagedNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.callback_group = ReentrantCallbackGroup()
         self.state = RobotState(self.now, self.kin.q_from_mapping)
+        self.clock_rate = ClockRate()   # fed by /joint_states (robot_topics)
 
     def activate(self):
         skills = self._skills

@@ -152,12 +152,14 @@ class Episode:
     truth_state: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     truth_object: str | None = None
     path: str | None = None
+    # The world's count of manual actions (a push, or a grasp that rose), per truth message.
+    truth_manual: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     def __post_init__(self):
         self.obs_stamp = np.asarray(self.obs_stamp, dtype=np.int64).reshape(-1)
         self.obs_z = np.asarray(self.obs_z, dtype=np.int64).reshape(-1, 4)
         for name in ('act_end', 'act_start', 'act_index', 'act_sequence', 'truth_stamp',
-                     'truth_state'):
+                     'truth_state', 'truth_manual'):
             setattr(self, name, np.asarray(getattr(self, name), dtype=np.int64).reshape(-1))
         self.act_success = np.asarray(self.act_success, dtype=bool).reshape(-1)
 
@@ -176,14 +178,28 @@ class Episode:
     def true_transitions(self) -> np.ndarray:
         """(K, 2) ground-truth state at each action's start and after its end (-1 unknown):
         the last truth stamped at or before the start, the first at or after the end."""
+        return self._around_actions(self.truth_state)
+
+    def world_actions(self) -> np.ndarray:
+        """(K,) manual actions the world counted during each action: 0 for a PUSH, LIFT or
+        FLIP whose hands never touched the cube or let go of it before it rose; -1
+        unknown (no truth, or bags without the count)."""
+        if self.truth_manual.size != self.truth_stamp.size:
+            return np.full(self.num_actions, -1, dtype=np.int64)
+        around = self._around_actions(self.truth_manual)
+        return np.where((around >= 0).all(axis=1), around[:, 1] - around[:, 0], -1)
+
+    def _around_actions(self, values) -> np.ndarray:
+        """(K, 2) `values` of the last truth at or before each action's start and the first
+        at or after its end (-1 where there is none)."""
         out = np.full((self.num_actions, 2), -1, dtype=np.int64)
         if self.truth_stamp.size == 0:
             return out
         i = np.searchsorted(self.truth_stamp, self.act_start, side='right') - 1
         j = np.searchsorted(self.truth_stamp, self.act_end, side='left')
-        out[:, 0] = np.where(i >= 0, self.truth_state[np.maximum(i, 0)], -1)
+        out[:, 0] = np.where(i >= 0, values[np.maximum(i, 0)], -1)
         ok = j < self.truth_stamp.size
-        out[:, 1] = np.where(ok, self.truth_state[np.minimum(j, self.truth_stamp.size - 1)], -1)
+        out[:, 1] = np.where(ok, values[np.minimum(j, self.truth_stamp.size - 1)], -1)
         return out
 
 
@@ -217,7 +233,8 @@ def read_episode(path) -> Episode:
                                  ACTIONS.index(msg.action) if msg.action in ACTIONS else -1,
                                  bool(msg.success), int(msg.sequence)))
                 else:
-                    truth.append((_ns(msg.header.stamp), int(msg.state)))
+                    truth.append((_ns(msg.header.stamp), int(msg.state),
+                                  int(msg.manual_actions)))
                     truth_object = str(msg.object_id)
     except BagLearningError:
         raise
@@ -227,11 +244,11 @@ def read_episode(path) -> Episode:
     truth.sort()
     order = np.argsort(np.asarray(obs_t, dtype=np.int64), kind='stable')
     a = np.asarray(acts, dtype=np.int64).reshape(-1, 5)
-    t = np.asarray(truth, dtype=np.int64).reshape(-1, 2)
+    t = np.asarray(truth, dtype=np.int64).reshape(-1, 3)
     return Episode(np.asarray(obs_t, np.int64)[order],
                    np.asarray(obs_z, np.int64).reshape(-1, 4)[order],
                    a[:, 0], np.minimum(a[:, 1], a[:, 0]), a[:, 2], a[:, 3].astype(bool),
-                   a[:, 4], t[:, 0], t[:, 1], truth_object, os.fspath(path))
+                   a[:, 4], t[:, 0], t[:, 1], truth_object, os.fspath(path), t[:, 2])
 
 
 # -- the object's HMM -------------------------------------------------------------------------

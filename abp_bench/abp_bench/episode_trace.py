@@ -8,9 +8,11 @@ For each action of each bag: the true state before and after (the sim's ground t
 ``up face/yaw step``), the probability that the tables give this transition for the true
 object's mass variant, the best such probability among the other members of its twin
 family (same faces, another mass), and the belief's probability of the true object
-after the action. A transition the true model calls rare (below ``--rare``) while a twin
-does not is evidence for the wrong twin: the finding the trace exists to count. A drop of
-the belief without a rare transition points at the observations instead.
+after the action; and whether the world saw a manual action at all (its count of manual
+actions moved: a push, or a grasp that rose). A transition the true model calls rare
+(below ``--rare``) while a twin does not is evidence for the wrong twin: the finding the
+trace exists to count. A drop of the belief without a rare transition points at the
+observations instead.
 
 No rclpy: the bags are read with `rosbags` (`abp_belief.atg_from_bags`).
 """
@@ -90,6 +92,7 @@ def trace_episode(path, label, model_set, table, rare=DEFAULT_RARE):
     # The belief after an action: the last one before the next action starts (or the end).
     next_start = np.append(episode.act_start[1:], np.iinfo(np.int64).max)
     after = _belief_of_truth(beliefs, next_start, truth)
+    world_actions = episode.world_actions()
     rows = []
     for k, (s, s2) in enumerate(episode.true_transitions()):
         a = int(episode.act_index[k])
@@ -98,6 +101,8 @@ def trace_episode(path, label, model_set, table, rare=DEFAULT_RARE):
                    success=bool(episode.act_success[k]), before=state_name(int(s)),
                    after=state_name(int(s2)), p_truth_before=float(before[k]),
                    p_truth_after=float(after[k]))
+        if row['action'] in MANUAL_ACTIONS and world_actions[k] >= 0:
+            row['world_saw_action'] = bool(world_actions[k] > 0)
         if a >= 0 and s >= 0 and s2 >= 0:
             p = table[a, masses, s, s2]
             others = masses != own
@@ -112,14 +117,16 @@ def trace_episode(path, label, model_set, table, rare=DEFAULT_RARE):
 
 
 def summary(rows, rare=DEFAULT_RARE):
-    """Counts per (action, true mass): actions, rare transitions, rare ones that a twin
-    explains better, and belief drops (P(truth) down by half or more) without one."""
+    """Counts per (action, true mass): actions, manual ones done that the world did not see,
+    rare transitions, rare ones that a twin explains better, and belief drops (P(truth)
+    down by half or more) without one."""
     table = Counter()
     for r in rows:
         if 'p_table_true' not in r or not r['success']:
             continue
         key = (r['action'] if r['action'] in MANUAL_ACTIONS else 'ORBIT', r['truth'].split('/')[1])
         table[key + ('actions',)] += 1
+        table[key + ('unseen',)] += r.get('world_saw_action') is False
         if r['rare']:
             table[key + ('rare',)] += 1
             if r.get('p_table_best_twin', 0.0) > r['p_table_true']:
@@ -127,11 +134,12 @@ def summary(rows, rare=DEFAULT_RARE):
         elif r['p_truth_after'] < 0.5 * r['p_truth_before']:
             table[key + ('drop_no_rare',)] += 1
     keys = sorted({k[:2] for k in table})
-    lines = [f'| action | true mass | actions | rare (p < {rare:g}) | of them, a twin more '
-             'likely | belief in truth halved without a rare transition |',
-             '|---|---|---:|---:|---:|---:|']
+    lines = [f'| action | true mass | done | world saw none | rare (p < {rare:g}) '
+             '| of them, a twin more likely | belief in truth halved without a rare '
+             'transition |', '|---|---|---:|---:|---:|---:|---:|']
     for key in keys:
         lines.append(f'| {key[0]} | {key[1]} | {table[key + ("actions",)]} | '
+                     f'{table[key + ("unseen",)] if key[0] != "ORBIT" else "-"} | '
                      f'{table[key + ("rare",)]} | {table[key + ("twin_better",)]} | '
                      f'{table[key + ("drop_no_rare",)]} |')
     return '\n'.join(lines)
@@ -139,13 +147,15 @@ def summary(rows, rare=DEFAULT_RARE):
 
 def episode_markdown(rows):
     lines = [f"**{rows[0]['bag']}** (truth {rows[0]['truth']})", '',
-             '| step | action | ok | true before -> after | p table (truth) | best twin p | '
-             'P(truth) before -> after |', '|---:|---|---|---|---:|---|---|']
+             '| step | action | ok | world saw it | true before -> after | p table (truth) | '
+             'best twin p | P(truth) before -> after |', '|---:|---|---|---|---|---:|---|---|']
     for r in rows:
         twin = (f"{r['best_twin']} {r['p_table_best_twin']:.3f}" if 'best_twin' in r else '-')
         p_true = f"{r['p_table_true']:.3f}" if 'p_table_true' in r else '-'
         mark = ' **rare**' if r.get('rare') else ''
+        seen = {True: 'yes', False: '**no**'}.get(r.get('world_saw_action'), '-')
         lines.append(f"| {r['step']} | {r['action']} | {'yes' if r['success'] else 'no'} | "
+                     f"{seen} | "
                      f"{r['before']} -> {r['after']} | {p_true}{mark} | {twin} | "
                      f"{r['p_truth_before']:.3f} -> {r['p_truth_after']:.3f} |")
     return '\n'.join(lines)

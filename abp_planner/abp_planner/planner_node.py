@@ -80,6 +80,7 @@ class PlannerNode(ManagedNode):
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
+        self._belief_node_names = set()  # (namespace, name) of the belief node(s)
         self._skills_at_start = []  # skill servers there when the episode started
         self._mode = values['planner_mode']
         self.health = NodeHealth(self)
@@ -218,7 +219,9 @@ class PlannerNode(ManagedNode):
 
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
     def reset_belief(self):
-        self._known_belief_publishers = self._belief_publishers()
+        publishers = self._belief_publishers()
+        self._known_belief_publishers = set(publishers)
+        self._belief_node_names = _belief_node_names(publishers)
         if not self._skills_at_start:
             self._skills_at_start = self._skills.ready()
         if not self._reset.wait_for_service(timeout_sec=10.0):
@@ -250,19 +253,26 @@ class PlannerNode(ManagedNode):
         return self._goal_handle.is_cancel_requested
 
     def _belief_publishers(self):
+        """{endpoint gid: (node namespace, node name)} of the publishers of the belief."""
         topic = names.absolute(names.BELIEF, self.get_namespace())
-        return {bytes(info.endpoint_gid) for info in self.get_publishers_info_by_topic(topic)}
+        return {bytes(info.endpoint_gid): (info.node_namespace, info.node_name)
+                for info in self.get_publishers_info_by_topic(topic)}
 
     def missing_nodes(self):
         # DDS notices a killed process when its lease expires (~20 s), so a node is seen
         # gone some seconds after it died; the runner asks again before every decision.
         # A respawned belief node can appear before the dead one is seen gone: a belief
-        # publisher the episode has not met counts as the old one lost (once).
+        # publisher of the belief node's name that the episode has not met counts as the
+        # old one lost (once). Other nodes may publish beliefs too (a test, a bag replay);
+        # they are neither the belief node nor its loss.
         missing = []
         publishers = self._belief_publishers()
-        new = publishers - self._known_belief_publishers
-        self._known_belief_publishers |= publishers
-        if not publishers or new:
+        if not self._belief_node_names:
+            self._belief_node_names = _belief_node_names(publishers)
+        own = {gid for gid, node in publishers.items() if node in self._belief_node_names}
+        new = own - self._known_belief_publishers
+        self._known_belief_publishers |= own
+        if not own or new:
             missing.append(BELIEF_NODE)
         if self._observation_sub.get_publisher_count() == 0:
             missing.append(f'aspect observations ({names.ASPECT_OBSERVATION})')
@@ -320,6 +330,13 @@ class PlannerNode(ManagedNode):
             belief = self._belief_msg
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg()))
+
+
+def _belief_node_names(publishers):
+    """The (namespace, name) of the belief node among the publishers of the belief: those
+    named as the belief node, else (a renamed node) all of them."""
+    nodes = set(publishers.values())
+    return {node for node in nodes if node[1] == BELIEF_NODE} or nodes
 
 
 def main(args=None):

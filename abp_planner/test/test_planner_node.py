@@ -18,7 +18,7 @@ from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
-from abp_common.qos import LATCHED_READER, reliable  # noqa: E402
+from abp_common.qos import LATCHED, LATCHED_READER, reliable  # noqa: E402
 from abp_msgs.action import Recognize  # noqa: E402
 from abp_msgs.msg import Belief, ExecutedAction, PlanStep  # noqa: E402
 
@@ -219,6 +219,29 @@ def test_a_respawned_belief_node_is_reobserved_and_the_goal_still_succeeds(
     response = result.result()
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
     assert response.result.object_id == robot_set(seed=SEED).names[11]
+
+
+def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_node(
+        ros_processes, client, spin, answering):
+    # Seen in the bad-input sweep under load: the sweep's belief publisher, discovered
+    # mid-episode, was taken for a respawned belief node; the episode paused and re-observed.
+    node, executor, action_client, executed, plans = client
+    graph = start_graph(ros_processes, 11)
+    result = send_goal(executor, action_client, spin, answering,
+                       Recognize.Goal(planner_mode='abp', max_actions=30,
+                                      posterior_threshold=0.999)).get_result_async()
+    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    extra = node.create_publisher(Belief, '/abp/belief', LATCHED)
+    # Matched with the planner's subscription: the planner has discovered it, and its next
+    # decision (after the next action) checks the belief node.
+    assert spin(executor, lambda: extra.get_subscription_count() >= 1, 60)
+    taken = len(executed)
+    assert spin(executor, lambda: len(executed) > taken or result.done(), 120)
+    assert spin(executor, result.done, 120), 'recognition did not finish'
+    response = result.result()
+    assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
+    log = ''.join(ros_processes.wait_for_line(graph['planner'], 'recognition finished', 30))
+    assert 'episode paused' not in log and 're-observing' not in log, log
 
 
 def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client, spin,

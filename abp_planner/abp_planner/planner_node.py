@@ -75,12 +75,12 @@ class PlannerNode(ManagedNode):
         self._group = ReentrantCallbackGroup()
         self._belief_lock = threading.Condition()
         self._belief_msg = None
+        self._before_reset = False  # a reset was asked for; its belief (step 0) not yet in
         self._cube_pose = None
         self._observations = ObservationTally()
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
-        self._belief_node_names = set()  # (namespace, name) of the belief node(s)
         self._skills_at_start = []  # skill servers there when the episode started
         self._mode = values['planner_mode']
         self.health = NodeHealth(self)
@@ -131,6 +131,9 @@ class PlannerNode(ManagedNode):
         self._belief_stamps.taken(msg.header.stamp)
         self._observations.add_belief(msg.step)
         with self._belief_lock:
+            if self._before_reset and msg.step != 0:
+                return   # latched or in flight from before the reset: not this episode's
+            self._before_reset = False
             self._belief_msg = msg
             self._belief_lock.notify_all()
         self._publish_markers()
@@ -219,14 +222,16 @@ class PlannerNode(ManagedNode):
 
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
     def reset_belief(self):
-        publishers = self._belief_publishers()
-        self._known_belief_publishers = set(publishers)
-        self._belief_node_names = _belief_node_names(publishers)
+        self._known_belief_publishers = _of_the_belief_node(self._belief_publishers())
         if not self._skills_at_start:
             self._skills_at_start = self._skills.ready()
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
         self._observations.reset()
+        # The belief node's messages arrive in order, so the first belief at step 0 from
+        # now on is the reset's own; the evidence waits skip everything before it.
+        with self._belief_lock:
+            self._before_reset = True
         response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
         if response is None or not response.success:
             raise RecognitionAborted('belief reset failed: '
@@ -235,7 +240,8 @@ class PlannerNode(ManagedNode):
     def wait_for_belief(self, predicate, timeout_s):
         deadline = time.monotonic() + timeout_s
         with self._belief_lock:
-            while self._belief_msg is None or not predicate(self._belief_msg):
+            while self._before_reset or self._belief_msg is None \
+                    or not predicate(self._belief_msg):
                 remaining = deadline - time.monotonic()
                 if remaining <= 0 or not rclpy.ok(context=self.context):
                     return None
@@ -264,13 +270,12 @@ class PlannerNode(ManagedNode):
         # A respawned belief node can appear before the dead one is seen gone: a belief
         # publisher of the belief node's name that the episode has not met counts as the
         # old one lost (once). Other nodes may publish beliefs too (a test, a bag replay);
-        # they are neither the belief node nor its loss.
+        # they are neither the belief node nor its loss. The ROS graph can list an
+        # endpoint (nameless at first) well after its messages flow, so a first sighting
+        # is no respawn.
         missing = []
-        publishers = self._belief_publishers()
-        if not self._belief_node_names:
-            self._belief_node_names = _belief_node_names(publishers)
-        own = {gid for gid, node in publishers.items() if node in self._belief_node_names}
-        new = own - self._known_belief_publishers
+        own = _of_the_belief_node(self._belief_publishers())
+        new = own - self._known_belief_publishers if self._known_belief_publishers else set()
         self._known_belief_publishers |= own
         if not own or new:
             missing.append(BELIEF_NODE)
@@ -332,11 +337,12 @@ class PlannerNode(ManagedNode):
                                                  self.get_clock().now().to_msg()))
 
 
-def _belief_node_names(publishers):
-    """The (namespace, name) of the belief node among the publishers of the belief: those
-    named as the belief node, else (a renamed node) all of them."""
-    nodes = set(publishers.values())
-    return {node for node in nodes if node[1] == BELIEF_NODE} or nodes
+def _of_the_belief_node(publishers):
+    """The endpoint gids among `publishers` ({gid: (namespace, node name)}) that are the
+    belief node's: those of a node named as the belief node; if there is none, all of them
+    (a renamed node, or one the graph lists without its name yet)."""
+    named = {gid for gid, node in publishers.items() if node[1] == BELIEF_NODE}
+    return named or set(publishers)
 
 
 def main(args=None):

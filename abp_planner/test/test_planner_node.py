@@ -202,14 +202,23 @@ def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client,
     assert not send.result().accepted
 
 
+def past_the_first_action(ros_processes, client, spin, answering, threshold=0.99,
+                          planner_params=()):
+    """The graph (hidden model 11) and the result future of a goal that has executed its
+    first action."""
+    node, executor, action_client, executed, plans = client
+    graph = start_graph(ros_processes, 11, planner_params=planner_params)
+    result = send_goal(executor, action_client, spin, answering,
+                       Recognize.Goal(planner_mode='abp', max_actions=30,
+                                      posterior_threshold=threshold)).get_result_async()
+    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    return graph, result
+
+
 def test_a_respawned_belief_node_is_reobserved_and_the_goal_still_succeeds(
         ros_processes, client, spin, answering):
     node, executor, action_client, executed, plans = client
-    graph = start_graph(ros_processes, 11)
-    result = send_goal(executor, action_client, spin, answering,
-                       Recognize.Goal(planner_mode='abp', max_actions=30,
-                                      posterior_threshold=0.99)).get_result_async()
-    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    graph, result = past_the_first_action(ros_processes, client, spin, answering)
     # kill -9 (no goodbye on DDS), then a new belief node, as a respawning launcher does.
     os.killpg(graph['belief'].pid, signal.SIGKILL)
     graph['belief'].wait(timeout=10)
@@ -226,11 +235,7 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     # Seen in the bad-input sweep under load: the sweep's belief publisher, discovered
     # mid-episode, was taken for a respawned belief node; the episode paused and re-observed.
     node, executor, action_client, executed, plans = client
-    graph = start_graph(ros_processes, 11)
-    result = send_goal(executor, action_client, spin, answering,
-                       Recognize.Goal(planner_mode='abp', max_actions=30,
-                                      posterior_threshold=0.999)).get_result_async()
-    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    graph, result = past_the_first_action(ros_processes, client, spin, answering, 0.999)
     extra = node.create_publisher(Belief, '/abp/belief', LATCHED)
     # Matched with the planner's subscription: the planner has discovered it, and its next
     # decision (after the next action) checks the belief node.
@@ -241,24 +246,27 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     response = result.result()
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
     log = ''.join(ros_processes.wait_for_line(graph['planner'], 'recognition finished', 30))
-    assert 'episode paused' not in log and 're-observing' not in log, log
+    # From the first action on: the extra publisher appeared after it.
+    after_first = log[log.index('action 1:'):]
+    assert 'episode paused' not in after_first and 're-observing' not in after_first, log
 
 
 def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client, spin,
                                                           answering):
     node, executor, action_client, executed, plans = client
-    graph = start_graph(ros_processes, 11, planner_params=['-p', 'node_return_timeout:=5.0'])
-    result = send_goal(executor, action_client, spin, answering,
-                       Recognize.Goal(planner_mode='abp', max_actions=30,
-                                      posterior_threshold=0.99)).get_result_async()
-    assert spin(executor, lambda: len(executed) >= 1, 60), 'no first action'
+    graph, result = past_the_first_action(ros_processes, client, spin, answering,
+                                          planner_params=['-p', 'node_return_timeout:=5.0'])
     # The world serves the skills and the observations: both are gone for good.
     os.killpg(graph['world'].pid, signal.SIGKILL)
     assert spin(executor, result.done, 180), 'recognition did not end'
     response = result.result()
     assert response.status == GoalStatus.STATUS_ABORTED
-    assert 'gone and not back within 5 s' in response.result.reason
-    assert 'skill servers (abp/skills/' in response.result.reason
+    reason = response.result.reason
+    assert 'gone and not back within 5 s' in reason
+    # The world served both; DDS may list its observation publisher gone before its
+    # action servers (seen under load), and the reason names what is gone at its deadline.
+    assert 'skill servers (abp/skills/' in reason or \
+        'aspect observations (abp/aspect_observation)' in reason, reason
 
 
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):

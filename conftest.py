@@ -33,18 +33,26 @@ class ProcessGroup:
         self.processes = []
         self._unread = {}  # pid -> output read from the pipe but not yet returned
         self._read = {}  # pid -> all output read from the pipe so far (for failure reports)
+        self.log_files = {}  # pid -> the file a process writes its output to
 
     def start(self, argv, **kwargs):
+        """Popen with the output on a pipe; a process whose environment names a `LOG` file
+        (a test that redirects a node's output there) has that file's tail in the report
+        of a failed test."""
+        env = kwargs.pop('env', None)
+        env = os.environ.copy() if env is None else env
         proc = subprocess.Popen(
             argv,
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
             start_new_session=True,
-            env=kwargs.pop('env', os.environ.copy()),
+            env=env,
             **kwargs,
         )
         self.processes.append(proc)
+        if env.get('LOG'):
+            self.log_files[proc.pid] = env['LOG']
         return proc
 
     def start_python(self, script, *args, **kwargs):
@@ -144,6 +152,10 @@ def ros_processes(request):
         # What the nodes said is what explains a failure over DDS: shown with the report.
         for proc in group.processes:
             lines = group.transcript(proc).splitlines()[-80:]
+            log_file = group.log_files.get(proc.pid)
+            if log_file and os.path.exists(log_file):
+                with open(log_file, errors='replace') as log:
+                    lines += log.read().splitlines()[-80:]
             print(f'--- output of {" ".join(map(str, proc.args))[:160]} '
                   f'(exit code {proc.returncode}), last {len(lines)} lines ---')
             print('\n'.join(lines))

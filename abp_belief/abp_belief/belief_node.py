@@ -38,6 +38,9 @@ from .model_set_config import MODEL_SET_PARAMETERS, MODEL_SET_SPECS, model_set_f
 
 # Deep enough that a replay or a busy machine does not overwrite unread inputs.
 INPUTS = qos.reliable(HELD_OBSERVATIONS)
+# Keys of the node's own state in its /diagnostics status (the planner quotes them).
+BELIEF_STEP = 'belief step'
+EVIDENCE_GATE = 'evidence gate'
 
 
 class BeliefNode(ManagedNode):
@@ -58,6 +61,7 @@ class BeliefNode(ManagedNode):
         self.health = NodeHealth(self)
         # One stream of time: observations guard the actions' stamps and the reverse.
         self._stamps = self.health.stamp_check()
+        self.health.add_values(self._state_values)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.add_post_set_parameters_callback(self._after_set_parameters)
         self.get_logger().info(
@@ -152,6 +156,7 @@ class BeliefNode(ManagedNode):
             response.success = False
             response.message = f'reset refused: {error}'
             return response
+        self.get_logger().info(f'belief reset at step {self.step} (a new episode)')
         self.step = 0
         self._gate.reset()
         # Stamped with the newest input taken, not with now: the corrections that follow
@@ -165,6 +170,12 @@ class BeliefNode(ManagedNode):
         return response
 
     # -- output -------------------------------------------------------------------
+    def _state_values(self):
+        """The filter's and the evidence gate's state, for /diagnostics."""
+        return [(BELIEF_STEP, self.step), (EVIDENCE_GATE, self._gate.describe()),
+                ('observations dropped as older than the last action',
+                 self._gate.dropped_stale)]
+
     def _publish_belief(self, stamp=None):
         top_k = self._param('top_k')
         belief = self.filter.belief

@@ -27,6 +27,7 @@ class EvidenceGate:
     def __init__(self, once_per_action=True, max_held=HELD_OBSERVATIONS):
         self.once_per_action = bool(once_per_action)
         self._held = collections.deque(maxlen=max_held)
+        self.dropped_stale = 0   # observations older than the last action, since the start
         self.reset()
 
     def reset(self):
@@ -44,11 +45,19 @@ class EvidenceGate:
         """True: correct with `observation` now (then call `corrected` if it was used).
         False: it is stale (dropped) or not due (held for the next action)."""
         if stamp_ns < self.earliest_stamp_ns:
+            self.dropped_stale += 1
             return False
         if self.once_per_action and not self.awaiting_observation:
             self._held.append((stamp_ns, observation))
             return False
         return True
+
+    def describe(self):
+        """One line on what the gate does with the next observation (for diagnostics)."""
+        if not self.once_per_action or self.awaiting_observation:
+            return (f'the next observation stamped at or after '
+                    f'{self.earliest_stamp_ns * 1e-9:.3f} s corrects')
+        return f'this view was used; {self.held} observations held for the next action'
 
     def corrected(self):
         """The belief was corrected: the evidence of this view is used."""

@@ -41,6 +41,19 @@ def test_frames_older_than_the_last_action_are_stale():
     assert gate.offer(s(101), 'fresh')
 
 
+def test_the_gate_describes_itself_and_counts_stale_frames():
+    gate = EvidenceGate()
+    assert gate.describe() == 'the next observation stamped at or after 0.000 s corrects'
+    gate.offer(s(1), 'a')
+    gate.corrected()
+    gate.offer(s(2), 'b')
+    assert gate.describe() == 'this view was used; 1 observations held for the next action'
+    gate.action_executed(s(10))
+    gate.offer(s(9), 'stale')
+    assert gate.dropped_stale == 1
+    assert gate.describe() == 'the next observation stamped at or after 10.000 s corrects'
+
+
 def test_frames_that_overtake_their_action_are_released_oldest_first():
     gate = EvidenceGate()
     assert gate.offer(s(1), 'first')

@@ -41,6 +41,7 @@ class NodeHealth:
         self.values = declare_all(node, HEALTH_SPECS)
         self.stats = HealthStats(log_period_s=self.values['reject_log_period'])
         self.name = f'{node.get_fully_qualified_name().lstrip("/")}: health'
+        self._value_sources = []
         self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         # Wall time: under use_sim_time a paused simulation must not silence diagnostics.
         self._timer = node.create_timer(self.values['diagnostics_period'], self.publish,
@@ -106,9 +107,16 @@ class NodeHealth:
         self.stats.fault(text)
 
     # -- output --------------------------------------------------------------------------
+    def add_values(self, source):
+        """Report the node's own state too: `source()` returns [(key, value text)], read
+        at each publication."""
+        self._value_sources.append(source)
+
     def status(self):
         snap = self.stats.snapshot()
         values = [KeyValue(key=k, value=v) for k, v in snap['values']]
+        values += [KeyValue(key=k, value=str(v)) for source in self._value_sources
+                   for k, v in source()]
         state = getattr(self.node, 'state_label', None)
         if state is not None:   # a managed node (abp_common.lifecycle)
             values.append(KeyValue(key=LIFECYCLE_STATE, value=state()))

@@ -79,6 +79,25 @@ class ObservationTally:
         return f'{seen}; {self.beliefs} belief{plural} since the reset{last}'
 
 
+def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'):
+    """One clause on what the belief node says of itself in its latest /diagnostics status
+    (`values`: {key: text}, `age_s` since it arrived; None: no status): whether it receives
+    the observations, what it rejected, and what its evidence gate will do. It tells a
+    stall in the belief node from one between the belief node and the planner."""
+    if values is None:
+        return 'no /diagnostics status of the belief node arrived'
+    labels = ((f'{observation_topic} inputs', '{} aspect observations received'),
+              (f'{observation_topic} age of last input (s)', 'the last {} s before'),
+              ('rejected total', '{} inputs rejected'), ('belief step', 'at step {}'),
+              ('evidence gate', 'evidence gate: {}'))
+    parts = [label.format(values[key]) for key, label in labels if key in values]
+    rejected = [f'{count} {key.removeprefix("rejected ")}' for key, count in values.items()
+                if key.startswith('rejected ') and key != 'rejected total']
+    if rejected:
+        parts.append(f'rejected: {", ".join(rejected)}')
+    return f'the belief node reported {age_s:.1f} s ago: {", ".join(parts)}'
+
+
 class RecognitionAborted(Exception):
     """The loop cannot go on (no observation, no feasible action); the reason is the message."""
 
@@ -350,4 +369,4 @@ class EpisodeRunner:
 
 __all__ = ['ABORTED', 'BELIEF_NODE', 'CANCELED', 'SUCCEEDED', 'EpisodePorts', 'EpisodeResult',
            'EpisodeRunner', 'PosteriorStop', 'RecognitionAborted', 'StopCheck', 'belief_array',
-           'expected_gain', 'top_posterior']
+           'belief_node_report', 'expected_gain', 'top_posterior']

@@ -18,11 +18,13 @@ counted in /diagnostics and logged at most once per few seconds per kind
 (abp_common.health); the planner keeps the last good belief.
 """
 
+import collections
 import sys
 import threading
 import time
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -32,7 +34,7 @@ from abp_belief.cube import ACTIONS
 from abp_belief.model_file import ModelFileError, fingerprint
 from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import input_checks, names, qos
-from abp_common.health import NodeHealth
+from abp_common.health import DIAGNOSTICS, NodeHealth
 from abp_common.input_checks import Rejected
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
@@ -49,6 +51,7 @@ from .episode import (
     ObservationTally,
     RecognitionAborted,
     RuleStop,
+    belief_node_report,
     expected_gain,
 )
 from .markers import belief_markers
@@ -78,6 +81,8 @@ class PlannerNode(ManagedNode):
         self._before_reset = False  # a reset was asked for; its belief (step 0) not yet in
         self._cube_pose = None
         self._observations = ObservationTally()
+        self._belief_health = None  # (values, monotonic time) of the belief node's status
+        self._rejected_at_reset = collections.Counter()  # own rejections before the episode
         self._busy = threading.Lock()
         self._goal_handle = None  # the goal being executed (one at a time: _busy)
         self._known_belief_publishers = set()  # endpoint gids met in this episode
@@ -104,6 +109,9 @@ class PlannerNode(ManagedNode):
         self._observation_sub = self.health.subscribe(
             AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
             callback_group=self._group)
+        # The belief node's own account, quoted when an episode gets no observation.
+        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10,
+                                 callback_group=self._group)
         self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
                                                callback_group=self._group)
@@ -127,13 +135,18 @@ class PlannerNode(ManagedNode):
                                         f'{self.model_set_id[:12]}): give both nodes the '
                                         'same model-set parameters')
         input_checks.belief(msg, self.model_set.num_nodes)
-        self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
-        self._belief_stamps.taken(msg.header.stamp)
         self._observations.add_belief(msg.step)
         with self._belief_lock:
-            if self._before_reset and msg.step != 0:
-                return   # latched or in flight from before the reset: not this episode's
-            self._before_reset = False
+            if self._before_reset:
+                if msg.step != 0:
+                    return   # latched or in flight from before the reset: not this episode's
+                # The reset's own belief. The corrections after it are this episode's even
+                # if its stamp is refused below (a clock that jumped): a refused reset
+                # belief must not hold the episode back until the observation timeout.
+                self._before_reset = False
+        self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
+        self._belief_stamps.taken(msg.header.stamp)
+        with self._belief_lock:
             self._belief_msg = msg
             self._belief_lock.notify_all()
         self._publish_markers()
@@ -146,6 +159,13 @@ class PlannerNode(ManagedNode):
         if msg.hypotheses:
             self._cube_pose = (msg.header.frame_id, msg.hypotheses[0].object_pose.pose)
             self._publish_markers()
+
+    def _on_diagnostics(self, msg: DiagnosticArray):
+        for status in msg.status:
+            node = status.name.removesuffix(': health').rsplit('/', 1)[-1]
+            if node == BELIEF_NODE and status.name.endswith(': health'):
+                self._belief_health = ({kv.key: kv.value for kv in status.values},
+                                       time.monotonic())
 
     # -- Recognize ----------------------------------------------------------------
     def _on_goal(self, goal):
@@ -228,10 +248,13 @@ class PlannerNode(ManagedNode):
         if not self._reset.wait_for_service(timeout_sec=10.0):
             raise RecognitionAborted(f'belief node not available ({names.RESET_BELIEF})')
         self._observations.reset()
+        # dict(): one atomic copy while input callbacks add on other threads.
+        self._rejected_at_reset = collections.Counter(dict(self.health.stats.rejected))
         # The belief node's messages arrive in order, so the first belief at step 0 from
         # now on is the reset's own; the evidence waits skip everything before it.
         with self._belief_lock:
             self._before_reset = True
+            self._belief_msg = None  # the last episode's: not to be planned on in this one
         response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
         if response is None or not response.success:
             raise RecognitionAborted('belief reset failed: '
@@ -249,7 +272,14 @@ class PlannerNode(ManagedNode):
             return self._belief_msg
 
     def observations_since_reset(self):
-        return self._observations.describe()
+        health = self._belief_health
+        report = belief_node_report(None, 0.0) if health is None else \
+            belief_node_report(health[0], time.monotonic() - health[1], names.ASPECT_OBSERVATION)
+        own = [f'{n} {topic} {kind}' for (topic, kind), n in
+               (collections.Counter(dict(self.health.stats.rejected))
+                - self._rejected_at_reset).items()]
+        rejected = f'; the planner rejected {", ".join(own)}' if own else ''
+        return f'{self._observations.describe()}{rejected}; {report}'
 
     def latest_belief(self):
         with self._belief_lock:

@@ -20,6 +20,7 @@ from abp_planner.episode import (
     RecognitionAborted,
     RuleStop,
     belief_array,
+    belief_node_report,
     expected_gain,
 )
 from abp_planner.planner import Decision
@@ -362,3 +363,20 @@ def test_rule_stop_reports_identification_only_for_an_answer():
     marginal_only = SimpleNamespace(step=1, probabilities=[0.999, 0.001], object_ids=['a', 'b'],
                                     entropy=0.0, node_indices=[], node_probabilities=[])
     assert rule.check(marginal_only, 0).success
+
+
+def test_belief_node_report_quotes_its_inputs_and_its_gate():
+    assert belief_node_report(None, 0.0) == 'no /diagnostics status of the belief node arrived'
+    values = {'abp/aspect_observation inputs': '412',
+              'abp/aspect_observation age of last input (s)': '0.07',
+              'abp/aspect_observation rate (Hz)': '14.9', 'rejected total': '0',
+              'belief step': '0', 'evidence gate': 'the next observation stamped at or after '
+                                                   '12.000 s corrects'}
+    assert belief_node_report(values, 0.42) == (
+        'the belief node reported 0.4 s ago: 412 aspect observations received, the last '
+        '0.07 s before, 0 inputs rejected, at step 0, evidence gate: the next observation '
+        'stamped at or after 12.000 s corrects')
+    values.update({'rejected total': '3', 'rejected abp/aspect_observation frame': '3'})
+    assert belief_node_report(values, 0.42).endswith(
+        '3 inputs rejected, at step 0, evidence gate: the next observation stamped at or '
+        'after 12.000 s corrects, rejected: 3 abp/aspect_observation frame')

@@ -20,7 +20,13 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
 from abp_common.qos import LATCHED, LATCHED_READER, reliable  # noqa: E402
 from abp_msgs.action import Recognize  # noqa: E402
-from abp_msgs.msg import Belief, ExecutedAction, PlanStep  # noqa: E402
+from abp_msgs.msg import (  # noqa: E402
+    AspectHypothesis,
+    AspectObservation,
+    Belief,
+    ExecutedAction,
+    PlanStep,
+)
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 WORLD = REPO / 'tests' / 'helpers' / 'model_world_node.py'
@@ -267,6 +273,43 @@ def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client,
     # action servers (seen under load), and the reason names what is gone at its deadline.
     assert 'skill servers (abp/skills/' in reason or \
         'aspect observations (abp/aspect_observation)' in reason, reason
+
+
+def test_observations_the_belief_node_refuses_end_the_goal_with_its_own_account(
+        ros_processes, client, spin, answering):
+    """A stall between perception and the belief: the planner takes observations with an
+    aspect hypothesis, the belief node refuses them (a frame it does not use). The abort
+    reason quotes the belief node's /diagnostics, which tells where the evidence stopped."""
+    node, executor, action_client, executed, plans = client
+    start_belief(ros_processes)
+    ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
+                         '-p', 'observation_timeout:=5.0'])
+    publisher = node.create_publisher(AspectObservation, '/abp/aspect_observation', RELIABLE)
+
+    def publish_observation():
+        msg = AspectObservation()
+        msg.header.stamp = node.get_clock().now().to_msg()
+        msg.header.frame_id = 'a_frame_nobody_uses'
+        msg.hypotheses = [AspectHypothesis(aspect_type=1, slots=[1, -1, -1], support=1.0,
+                                           score=1.0)]
+        msg.hypotheses[0].object_pose.pose.orientation.w = 1.0
+        publisher.publish(msg)
+
+    node.create_timer(0.1, publish_observation)
+    assert answering(executor, action_client, 30), 'no /abp/recognize server'
+    assert spin(executor, lambda: publisher.get_subscription_count() >= 2, 30), \
+        'the belief and planner nodes did not subscribe to the observations'
+    send = action_client.send_goal_async(Recognize.Goal())
+    assert spin(executor, send.done, 10) and send.result().accepted
+    result = send.result().get_result_async()
+    assert spin(executor, result.done, 60), 'recognition did not end'
+    assert result.result().status == GoalStatus.STATUS_ABORTED
+    reason = result.result().result.reason
+    assert 'aspect observations had an aspect hypothesis, but no belief took one' in reason, \
+        reason
+    assert 'the belief node reported' in reason and 'aspect observations received' in reason, \
+        reason
+    assert 'rejected: ' in reason and 'abp/aspect_observation frame' in reason, reason
 
 
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):

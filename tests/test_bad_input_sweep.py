@@ -17,7 +17,10 @@ the future, wrong frame ids, JSON that is not JSON. Then:
 - each node's log names each (topic, kind) at most once per `reject_log_period`
   (5 s), not once per message.
 
-/clock is left alone: it is rclpy's time source, not a node's input.
+/clock is left alone: it is rclpy's time source, not a node's input. So is /diagnostics:
+the planner reads it only to quote the belief node's own account in the reason of an
+episode that got no observation (bounded in length, abp_planner.episode.belief_node_report,
+unit-tested), and this test reads it to check the counts.
 """
 
 import collections

@@ -79,6 +79,10 @@ class ObservationTally:
         return f'{seen}; {self.beliefs} belief{plural} since the reset{last}'
 
 
+# Limits of the belief node's report: characters per quoted key or value, rejection kinds.
+REPORT_CHARS, REPORT_ITEMS = 120, 10
+
+
 def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'):
     """One clause on what the belief node says of itself in its latest /diagnostics status
     (`values`: {key: text}, `age_s` since it arrived; None: no status): whether it receives
@@ -90,9 +94,11 @@ def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'
               (f'{observation_topic} age of last input (s)', 'the last {} s before'),
               ('rejected total', '{} inputs rejected'), ('belief step', 'at step {}'),
               ('evidence gate', 'evidence gate: {}'))
+    # Bounded: /diagnostics is anyone's topic, and this text ends up in a goal result.
+    values = {key[:REPORT_CHARS]: value[:REPORT_CHARS] for key, value in values.items()}
     parts = [label.format(values[key]) for key, label in labels if key in values]
     rejected = [f'{count} {key.removeprefix("rejected ")}' for key, count in values.items()
-                if key.startswith('rejected ') and key != 'rejected total']
+                if key.startswith('rejected ') and key != 'rejected total'][:REPORT_ITEMS]
     if rejected:
         parts.append(f'rejected: {", ".join(rejected)}')
     return f'the belief node reported {age_s:.1f} s ago: {", ".join(parts)}'

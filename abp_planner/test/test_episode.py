@@ -380,3 +380,5 @@ def test_belief_node_report_quotes_its_inputs_and_its_gate():
     assert belief_node_report(values, 0.42).endswith(
         '3 inputs rejected, at step 0, evidence gate: the next observation stamped at or '
         'after 12.000 s corrects, rejected: 3 abp/aspect_observation frame')
+    values['evidence gate'] = 'x' * 10_000
+    assert len(belief_node_report(values, 0.42)) < 1000

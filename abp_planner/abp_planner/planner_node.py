@@ -136,17 +136,21 @@ class PlannerNode(ManagedNode):
                                         'same model-set parameters')
         input_checks.belief(msg, self.model_set.num_nodes)
         self._observations.add_belief(msg.step)
-        with self._belief_lock:
-            if self._before_reset:
-                if msg.step != 0:
-                    return   # latched or in flight from before the reset: not this episode's
-                # The reset's own belief. The corrections after it are this episode's even
-                # if its stamp is refused below (a clock that jumped): a refused reset
-                # belief must not hold the episode back until the observation timeout.
-                self._before_reset = False
-        self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
+        try:
+            self._belief_stamps.check(msg.header.stamp, self.health.now_ns())
+        except Rejected:
+            if msg.step == 0:
+                # The reset's own belief, refused for its stamp (a clock that jumped): the
+                # corrections after it are still this episode's, so it must not hold the
+                # episode back until the observation timeout.
+                with self._belief_lock:
+                    self._before_reset = False
+            raise
         self._belief_stamps.taken(msg.header.stamp)
         with self._belief_lock:
+            if self._before_reset and msg.step != 0:
+                return   # latched or in flight from before the reset: not this episode's
+            self._before_reset = False
             self._belief_msg = msg
             self._belief_lock.notify_all()
         self._publish_markers()

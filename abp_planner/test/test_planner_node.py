@@ -16,7 +16,9 @@ ament_index = pytest.importorskip('ament_index_python.packages')
 from action_msgs.msg import GoalStatus  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.time import Time  # noqa: E402
 
+from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
 from abp_common.qos import LATCHED, LATCHED_READER, reliable  # noqa: E402
 from abp_msgs.action import Recognize  # noqa: E402
@@ -27,6 +29,7 @@ from abp_msgs.msg import (  # noqa: E402
     ExecutedAction,
     PlanStep,
 )
+from abp_msgs.srv import ResetBelief  # noqa: E402
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 WORLD = REPO / 'tests' / 'helpers' / 'model_world_node.py'
@@ -310,6 +313,53 @@ def test_observations_the_belief_node_refuses_end_the_goal_with_its_own_account(
     assert 'the belief node reported' in reason and 'aspect observations received' in reason, \
         reason
     assert 'rejected: ' in reason and 'abp/aspect_observation frame' in reason, reason
+
+
+def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
+        ros_processes, client, spin, answering):
+    """This test's node stands in for the belief node over DDS: it answers the planner's
+    reset with a step-0 belief stamped far ahead of the planner's clock (a clock that
+    jumped), which the planner refuses, then sends the first correction (step 1). The
+    planner must plan on that correction, not wait out its observation timeout."""
+    node, executor, action_client, executed, plans = client
+    models = robot_set(seed=SEED)
+    beliefs = node.create_publisher(Belief, '/abp/belief', LATCHED)
+    resets = []
+
+    def belief(step, stamp_ns):
+        # Two models at 0.5 each: undecided, so the planner plans.
+        msg = Belief(step=step, total_models=models.num_models,
+                     object_ids=list(models.names[:2]), probabilities=[0.5, 0.5])
+        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
+        msg.node_indices = [0, STATES_PER_MODEL]
+        msg.node_probabilities = [0.5, 0.5]
+        return msg
+
+    def on_reset(request, response):
+        now_ns = node.get_clock().now().nanoseconds
+        beliefs.publish(belief(0, now_ns + 10**14))   # 1e5 s ahead
+        resets.append(now_ns)
+        response.success = True
+        return response
+
+    node.create_service(ResetBelief, '/abp/reset_belief', on_reset)
+    # Perception is there (the planner pauses an episode without it); it need not speak.
+    observations = node.create_publisher(AspectObservation, '/abp/aspect_observation',
+                                         RELIABLE)
+    planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
+                                   '-p', 'observation_timeout:=5.0'])
+    assert answering(executor, action_client, 30), 'no /abp/recognize server'
+    assert spin(executor, lambda: beliefs.get_subscription_count() >= 1 and plans.matched()
+                and observations.get_subscription_count() >= 1, 30), \
+        'the planner did not subscribe to the beliefs and observations or publish plans'
+    send = action_client.send_goal_async(Recognize.Goal())
+    assert spin(executor, send.done, 10) and send.result().accepted
+    assert spin(executor, lambda: resets, 30), 'the planner did not reset the belief'
+    beliefs.publish(belief(1, node.get_clock().now().nanoseconds))
+    assert spin(executor, lambda: plans, 30), \
+        ''.join(ros_processes.wait_for_line(planner, 'recognition finished', 30))
+    log = ''.join(ros_processes.wait_for_line(planner, 'stamp_future', 10))
+    assert 'rejected input on /abp/belief (stamp_future)' in log, log
 
 
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):

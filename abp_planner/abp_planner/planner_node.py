@@ -89,7 +89,11 @@ class PlannerNode(ManagedNode):
         self._skills_at_start = []  # skill servers there when the episode started
         self._mode = values['planner_mode']
         self.health = NodeHealth(self)
-        self._belief_stamps = self.health.stamp_check()
+        # Beliefs are live, on the clock the planner runs on: one stamped more than
+        # max_stamp_lag before that clock is stale, however quiet the topic has been. (Judged
+        # against the newest belief as well, a belief stamped near 0 passed while the newest
+        # was younger than the lag: the bad-input sweep's got an episode named wrongly.)
+        self._belief_stamps = self.health.stamp_check(trust_clock=True)
         self._observation_stamps = self.health.stamp_check()
         self._ready_line = (f'planner ready over {self.model_set.num_models} models '
                             f'(mode {values["planner_mode"]}, '

@@ -6,12 +6,13 @@ goal must succeed with the right object; no process of the graph may be left aft
 driver inherits this session's isolated ROS_DOMAIN_ID from the root conftest."""
 
 import json
+import re
 import sys
 
 import pytest
 
 from abp_bench.soak import GRAPH_NODES
-from tests.helpers.graph import run_to_end
+from tests.helpers.graph import node_log_tails, run_to_end
 
 # Idle, the whole test takes about 3 minutes (12 episodes of 10-20 s, each node back
 # within seconds). The deadlines leave room for a loaded machine, and stop the driver
@@ -28,6 +29,11 @@ def test_every_node_killed_mid_episode_comes_back_and_the_next_goal_succeeds(tmp
          '--episode-timeout', str(EPISODE_TIMEOUT_S), '--kill', *GRAPH_NODES,
          '--json', str(report)],
         DRIVER_TIMEOUT_S, tmp_path / 'soak-output.txt')
+    # The driver prints where its graph's logs are: a failure report carries their tails
+    # (the temporary directory does not outlive a CI machine).
+    logs = re.search(r'logs in (\S+)\)', trace)
+    if logs:
+        trace += node_log_tails(logs.group(1), lines=60)
     assert not timed_out, trace
     assert report.exists(), trace
     result = json.loads(report.read_text())
@@ -44,3 +50,4 @@ def test_every_node_killed_mid_episode_comes_back_and_the_next_goal_succeeds(tmp
             (name, trace)
     assert result['stopped'] and not result['leftovers'], trace
     assert code == 0, trace
+

@@ -20,7 +20,7 @@ import subprocess
 import pytest
 
 from abp_belief.population import robot_set
-from tests.helpers.graph import graph_processes, run_to_end, stop_group
+from tests.helpers.graph import graph_processes, node_log_tails, run_to_end, stop_group
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 SEED = 1
@@ -43,15 +43,6 @@ def run_episode(tmp_path, object_index, extra=()):
         trace += node_log_tails(log_dir)
     assert result_file.exists(), trace
     return code, json.loads(result_file.read_text()), trace
-
-
-def node_log_tails(log_dir, lines=30):
-    """The last `lines` lines of each node log in `log_dir`, for a failure report."""
-    parts = []
-    for log in sorted(pathlib.Path(log_dir).glob('*.log')):
-        tail = log.read_text(errors='replace').splitlines()[-lines:]
-        parts.append(f'\n--- {log.name} (last {len(tail)} lines) ---\n' + '\n'.join(tail))
-    return ''.join(parts)
 
 
 def twin_with_mass(models, mass_name):

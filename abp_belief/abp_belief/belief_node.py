@@ -161,7 +161,7 @@ class BeliefNode(ManagedNode):
         self._gate.reset()
         # Stamped with the newest input taken, not with now: the corrections that follow
         # carry their frames' stamps, which trail the clock by the perception latency, and
-        # a reader's stale-stamp check (the planner's) must not see the topic go back.
+        # a reader that compares stamps within the topic must not see it go back.
         # Never after the clock, though: a restarted simulation's clock went back.
         newest = self._stamps.newest_not_after(self.get_clock().now().nanoseconds)
         self._publish_belief(None if newest is None else Time(nanoseconds=newest).to_msg())

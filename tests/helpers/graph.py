@@ -100,3 +100,12 @@ def run_to_end(argv, timeout, output_path):
         output += (f'\n[test] stopped after {time.monotonic() - started:.0f} s: no end '
                    f'within {timeout:.0f} s\n')
     return proc.returncode, output, timed_out
+
+
+def node_log_tails(log_dir, lines=30):
+    """The last `lines` lines of each node log in `log_dir`, for a failure report."""
+    parts = []
+    for log in sorted(pathlib.Path(log_dir).glob('*.log')):
+        tail = log.read_text(errors='replace').splitlines()[-lines:]
+        parts.append(f'\n--- {log.name} (last {len(tail)} lines) ---\n' + '\n'.join(tail))
+    return ''.join(parts)

@@ -50,4 +50,3 @@ def test_every_node_killed_mid_episode_comes_back_and_the_next_goal_succeeds(tmp
             (name, trace)
     assert result['stopped'] and not result['leftovers'], trace
     assert code == 0, trace
-

@@ -16,4 +16,8 @@ BELIEF_SPECS = (
               "aspect matcher's base_frame); observations in another frame are rejected."),
 )
 
-__all__ = ['BELIEF_SPECS']
+# Keys of the belief node's own state in its /diagnostics status (the planner quotes them).
+BELIEF_STEP_KEY = 'belief step'
+EVIDENCE_GATE_KEY = 'evidence gate'
+
+__all__ = ['BELIEF_SPECS', 'BELIEF_STEP_KEY', 'EVIDENCE_GATE_KEY']

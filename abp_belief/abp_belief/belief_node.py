@@ -29,7 +29,7 @@ from abp_common.parameters import declare_all
 from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
 from abp_msgs.srv import ResetBelief
 
-from .belief_config import BELIEF_SPECS
+from .belief_config import BELIEF_SPECS, BELIEF_STEP_KEY, EVIDENCE_GATE_KEY
 from .cube import ACTIONS, STATES_PER_MODEL
 from .evidence_gate import HELD_OBSERVATIONS, EvidenceGate
 from .filter import BeliefFilter, BeliefUpdateError
@@ -38,9 +38,6 @@ from .model_set_config import MODEL_SET_PARAMETERS, MODEL_SET_SPECS, model_set_f
 
 # Deep enough that a replay or a busy machine does not overwrite unread inputs.
 INPUTS = qos.reliable(HELD_OBSERVATIONS)
-# Keys of the node's own state in its /diagnostics status (the planner quotes them).
-BELIEF_STEP = 'belief step'
-EVIDENCE_GATE = 'evidence gate'
 
 
 class BeliefNode(ManagedNode):
@@ -172,7 +169,7 @@ class BeliefNode(ManagedNode):
     # -- output -------------------------------------------------------------------
     def _state_values(self):
         """The filter's and the evidence gate's state, for /diagnostics."""
-        return [(BELIEF_STEP, self.step), (EVIDENCE_GATE, self._gate.describe()),
+        return [(BELIEF_STEP_KEY, self.step), (EVIDENCE_GATE_KEY, self._gate.describe()),
                 ('observations dropped as older than the last action',
                  self._gate.dropped_stale)]
 

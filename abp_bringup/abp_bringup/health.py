@@ -19,7 +19,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
-from abp_common.health import DIAGNOSTICS
+from abp_common.health import DIAGNOSTICS, node_of_status
 
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
 RATE, AGE, REJECTED = ' rate (Hz)', ' age of last input (s)', 'rejected '
@@ -36,7 +36,7 @@ def summarize(statuses, width=100):
     for name in sorted(statuses):
         status = statuses[name]
         values = {kv.key: kv.value for kv in status.values}
-        node = name.removesuffix(': health')
+        node = node_of_status(name) or name
         lines.append(f'{node:<24} {LEVELS.get(level_of(status), "?"):<6} '
                      f'{status.message}'[:width])
         if values.get('lifecycle state', 'active') != 'active':

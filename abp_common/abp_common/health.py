@@ -29,6 +29,7 @@ from .input_checks import Rejected, StampCheck
 from .parameters import declare_all
 
 DIAGNOSTICS = '/diagnostics'
+STATUS_SUFFIX = ': health'   # a node's status is named `<node full name><suffix>`
 HARDWARE_ID = 'abp'
 LIFECYCLE_STATE = 'lifecycle state'
 _LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
@@ -40,7 +41,7 @@ class NodeHealth:
         self.node = node
         self.values = declare_all(node, HEALTH_SPECS)
         self.stats = HealthStats(log_period_s=self.values['reject_log_period'])
-        self.name = f'{node.get_fully_qualified_name().lstrip("/")}: health'
+        self.name = node.get_fully_qualified_name().lstrip('/') + STATUS_SUFFIX
         self._value_sources = []
         self._pub = node.create_publisher(DiagnosticArray, DIAGNOSTICS, 10)
         # Wall time: under use_sim_time a paused simulation must not silence diagnostics.
@@ -130,6 +131,12 @@ class NodeHealth:
         self._pub.publish(msg)
 
 
+def node_of_status(name):
+    """The node (full name without the leading slash) whose health status is named `name`,
+    or None for a status that is not an abp node's health."""
+    return name[:-len(STATUS_SUFFIX)] if name.endswith(STATUS_SUFFIX) else None
+
+
 class _Timed:
     def __init__(self, stats):
         self.stats = stats
@@ -143,4 +150,4 @@ class _Timed:
         return False
 
 
-__all__ = ['DIAGNOSTICS', 'NodeHealth']
+__all__ = ['DIAGNOSTICS', 'STATUS_SUFFIX', 'NodeHealth', 'node_of_status']

@@ -25,6 +25,8 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from abp_belief.belief_config import BELIEF_STEP_KEY, EVIDENCE_GATE_KEY
+
 SUCCEEDED, CANCELED, ABORTED = 'succeeded', 'canceled', 'aborted'
 # Pause between feasibility checks while no action is feasible.
 FEASIBILITY_RETRY_S = 0.5
@@ -92,8 +94,8 @@ def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'
         return 'no /diagnostics status of the belief node arrived'
     labels = ((f'{observation_topic} inputs', '{} aspect observations received'),
               (f'{observation_topic} age of last input (s)', 'the last {} s before'),
-              ('rejected total', '{} inputs rejected'), ('belief step', 'at step {}'),
-              ('evidence gate', 'evidence gate: {}'))
+              ('rejected total', '{} inputs rejected'), (BELIEF_STEP_KEY, 'at step {}'),
+              (EVIDENCE_GATE_KEY, 'evidence gate: {}'))
     # Bounded: /diagnostics is anyone's topic, and this text ends up in a goal result.
     values = {key[:REPORT_CHARS]: value[:REPORT_CHARS] for key, value in values.items()}
     parts = [label.format(values[key]) for key, label in labels if key in values]

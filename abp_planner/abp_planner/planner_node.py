@@ -34,7 +34,7 @@ from abp_belief.cube import ACTIONS
 from abp_belief.model_file import ModelFileError, fingerprint
 from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import input_checks, names, qos
-from abp_common.health import DIAGNOSTICS, NodeHealth
+from abp_common.health import DIAGNOSTICS, NodeHealth, node_of_status
 from abp_common.input_checks import Rejected
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
@@ -170,8 +170,8 @@ class PlannerNode(ManagedNode):
 
     def _on_diagnostics(self, msg: DiagnosticArray):
         for status in msg.status:
-            node = status.name.removesuffix(': health').rsplit('/', 1)[-1]
-            if node == BELIEF_NODE and status.name.endswith(': health'):
+            node = node_of_status(status.name)
+            if node is not None and node.rsplit('/', 1)[-1] == BELIEF_NODE:
                 self._belief_health = ({kv.key: kv.value for kv in status.values},
                                        time.monotonic())
 

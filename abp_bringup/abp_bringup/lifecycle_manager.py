@@ -43,6 +43,7 @@ GRAPH_NODES = ('sim_bridge', 'artag_detector', 'aspect_matcher', 'belief', 'skil
 READY_LINE = 'graph ready'
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}
+STATE_AFTER = {'configure': 'inactive', 'activate': 'active'}
 MANAGER_SPECS = [
     ParamSpec('node_names', STRING_ARRAY, list(GRAPH_NODES),
               'The managed nodes, in the order they are configured and activated (names '
@@ -53,10 +54,11 @@ MANAGER_SPECS = [
     ParamSpec('check_period', DOUBLE, 0.5, 'Seconds between two checks of the nodes.',
               (0.05, 60.0)),
     ParamSpec('service_timeout', DOUBLE, 5.0,
-              "Seconds to wait for a node's endpoint_status answer.", (0.1, 600.0)),
+              "Seconds to wait for a node's endpoint_status answer, and for the answer to a "
+              'transition before asking the node whether the request was lost.', (0.1, 600.0)),
     ParamSpec('transition_timeout', DOUBLE, 300.0,
               'Seconds to wait for a configure or activate to finish (loading a large '
-              'model set takes a while); a node that does not answer is asked again.',
+              'model set takes a while); a request the node never received is sent again.',
               (1.0, 3600.0)),
     ParamSpec('log_period', DOUBLE, 10.0,
               'Seconds between two log lines saying what the graph is waiting for.',
@@ -142,24 +144,57 @@ class LifecycleManager(Node):
                 if report['state'] == 'active':
                     self._settled[name] = instance
                 return report
-            answer = self._call(self._change[name], ChangeState.Request(
-                transition=Transition(id=TRANSITIONS[transition])),
-                self.values['transition_timeout'])
-            if answer is None:
-                self.get_logger().warning(f'{name}: no answer to {transition} within '
-                                          f'{self.values["transition_timeout"]:g} s; asking '
-                                          'again')
-                return None
-            if not answer.success:
+            answer, report = self._transition(name, instance, transition, report['state'])
+            reached = report is not None and report['instance'] == instance and \
+                report['state'] == STATE_AFTER[transition]
+            if not reached and answer is None:
+                self.get_logger().warning(f'{name}: no answer to {transition}; asking again '
+                                          'at the next check')
+                return report
+            if not reached and not answer.success:
                 self._settled[name] = instance
                 self.get_logger().error(f'bringup failed: {name} refused to {transition} '
                                         '(its log says why); it is not asked again until it '
                                         'restarts')
-                return self._reports([name]).get(name)
-            self.get_logger().info(f'{name}: {transition}d')
-            report = self._reports([name]).get(name)
-            if report is None or report['instance'] != instance:
                 return report
+            # (A refusal with the state reached answers a repeated request.)
+            self.get_logger().info(f'{name}: {transition}d')
+            if report is None or report['instance'] != instance:
+                return report   # silent, or a new process meanwhile: the next check sees
+
+    def _transition(self, name, instance, transition, state_before):
+        """Ask node `name` for `transition`; returns (answer or None, its report after).
+
+        DDS drops a request sent before the server has discovered the client (a new
+        process, while the killed one's service is still listed): a request unanswered
+        for `service_timeout` s is sent again if the node's report shows it still in
+        `state_before` (a busy node, one mid-transition, or a reply that was lost are
+        waited for, up to `transition_timeout` s). A repeated request that arrives after
+        the first has done its work is refused by the node; the caller then reads the
+        state reached from the report."""
+        client = self._change[name]
+        request = ChangeState.Request(transition=Transition(id=TRANSITIONS[transition]))
+        deadline = time.monotonic() + self.values['transition_timeout']
+        if not client.wait_for_service(timeout_sec=min(self.values['transition_timeout'],
+                                                       5.0)):
+            return None, self._reports([name]).get(name)
+        future, answered = self._send(client, request)
+        while True:
+            left = deadline - time.monotonic()
+            if answered.wait(max(0.0, min(self.values['service_timeout'], left))):
+                return future.result(), self._reports([name]).get(name)
+            report = self._reports([name]).get(name)
+            if time.monotonic() >= deadline or (
+                    report is not None and (report['instance'] != instance or
+                                            report['state'] == STATE_AFTER[transition])):
+                client.remove_pending_request(future)
+                return None, report
+            if report is not None and report['state'] == state_before:
+                client.remove_pending_request(future)
+                self.get_logger().info(f'{name}: no answer to {transition} within '
+                                       f'{self.values["service_timeout"]:g} s and still '
+                                       f'{state_before}; asking again')
+                future, answered = self._send(client, request)
 
     def _reports(self, names):
         """{node: endpoint report} of the nodes that answer, asked all at once."""
@@ -185,15 +220,6 @@ class LifecycleManager(Node):
         future = client.call_async(request)
         future.add_done_callback(lambda _: event.set())
         return future, event
-
-    def _call(self, client, request, timeout):
-        if not client.wait_for_service(timeout_sec=min(timeout, 5.0)):
-            return None
-        future, event = self._send(client, request)
-        if not event.wait(timeout):
-            client.remove_pending_request(future)
-            return None
-        return future.result()
 
     # -- readiness -----------------------------------------------------------------------
     def _update_ready(self, reports):

@@ -150,3 +150,79 @@ def test_a_configure_failure_under_the_manager_is_reported_once(ros_processes, t
     assert not answer.success and 'belief is unconfigured' in answer.message, answer.message
     ros_processes.stop_all()
     assert ros_processes.transcript(belief).count('configure failed') == 1
+
+
+@pytest.mark.parametrize('lost', ['request', 'reply'])
+def test_a_transition_request_or_reply_lost_in_dds_does_not_hold_the_bringup(
+        ros_processes, tester, rclpy_context, spin, lost):
+    """DDS drops a service request sent before the server has discovered the client (a
+    respawned node, while the killed one's service is still listed), and a reply to a
+    client the server has not discovered. A stand-in managed node (this test's own, over
+    DDS) never answers the first change_state request: `request` lost (the node stays
+    unconfigured) or `reply` lost (the node did configure). The manager must not wait out
+    its transition_timeout (an hour here): it sends a lost request again, or goes on from
+    the state reached, and the graph is ready."""
+    node, executor = tester
+    import threading
+
+    from rclpy.callback_groups import ReentrantCallbackGroup
+    from rclpy.executors import MultiThreadedExecutor
+
+    from abp_common.lifecycle_report import endpoint_report
+    # The stand-in spins on its own threads: its first change_state callback holds one
+    # until the test ends (rclpy sends a service's reply when the callback returns).
+    stand_in = rclpy.create_node('lossy', context=rclpy_context)
+    stand_in_executor = MultiThreadedExecutor(num_threads=3, context=rclpy_context)
+    stand_in_executor.add_node(stand_in)
+    state = {'label': 'unconfigured'}
+    asked = []
+    test_over = threading.Event()
+    after = {(Transition.TRANSITION_CONFIGURE, 'unconfigured'): 'inactive',
+             (Transition.TRANSITION_ACTIVATE, 'inactive'): 'active'}
+
+    def on_status(request, response):
+        response.success = state['label'] == 'active'
+        response.message = json.dumps(endpoint_report(state['label'], 'stand-in', [], []))
+        return response
+
+    def on_change_state(request, response):
+        transition = request.transition.id
+        asked.append(transition)
+        new_state = after.get((transition, state['label']))
+        response.success = new_state is not None
+        if new_state and (len(asked) > 1 or lost == 'reply'):
+            state['label'] = new_state
+        if len(asked) == 1:
+            test_over.wait()
+        return response
+
+    group = ReentrantCallbackGroup()
+    stand_in.create_service(Trigger, '~/endpoint_status', on_status, callback_group=group)
+    stand_in.create_service(ChangeState, '~/change_state', on_change_state,
+                            callback_group=group)
+    spinner = threading.Thread(target=stand_in_executor.spin, daemon=True)
+    spinner.start()
+    manager = ros_processes.start([
+        executable('abp_bringup', 'lifecycle_manager'), '--ros-args',
+        '-p', 'node_names:=[lossy]', '-p', 'check_period:=0.2', '-p', 'service_timeout:=1.0',
+        '-p', 'transition_timeout:=3600.0'])
+    ready = []
+    node.create_subscription(Bool, '/lifecycle_manager/graph_ready',
+                             lambda msg: ready.append(msg.data), LATCHED)
+    try:
+        assert spin(executor, lambda: ready and ready[-1], TIMEOUT), \
+            (ready, asked)
+        configure, activate = Transition.TRANSITION_CONFIGURE, Transition.TRANSITION_ACTIVATE
+        if lost == 'request':
+            assert asked == [configure, configure, activate], asked
+            ros_processes.wait_for_line(
+                manager, 'lossy: no answer to configure within 1 s and still unconfigured; '
+                'asking again', TIMEOUT)
+        else:
+            assert asked == [configure, activate], asked
+        ros_processes.wait_for_line(manager, 'graph ready', TIMEOUT)
+    finally:
+        test_over.set()
+        stand_in_executor.shutdown()
+        spinner.join(timeout=10)
+        stand_in.destroy_node()

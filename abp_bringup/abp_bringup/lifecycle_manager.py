@@ -14,7 +14,9 @@ Each node instance (process) is brought up once: a node that refuses a transitio
 logged (`bringup failed: <node> refused to configure ...`; the node's own log says why)
 and not asked again, and a node deactivated or cleaned up by someone else stays so. A
 respawned node is a new instance: the manager sees it unconfigured and brings it back
-to active. Until the graph was first ready, a node waits for the nodes before it in
+to active. A transition request or reply that DDS drops (a respawned node has not
+discovered the manager yet) is told from a slow transition by the node's own report and
+sent again. Until the graph was first ready, a node waits for the nodes before it in
 `node_names` (dependency order). With `autostart:=false` the manager only watches until
 `~/startup` (std_srvs/Trigger) is called, which also brings every node that is not
 active up again.

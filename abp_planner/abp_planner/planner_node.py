@@ -26,7 +26,7 @@ import time
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from visualization_msgs.msg import MarkerArray
 
@@ -66,8 +66,8 @@ class PlannerNode(ManagedNode):
     """Configure loads the model set; activate opens the topics, the clients and the
     Recognize server (abp_common.lifecycle)."""
 
-    def __init__(self):
-        super().__init__('planner')
+    def __init__(self, **kwargs):
+        super().__init__('planner', **kwargs)
 
     def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
@@ -76,6 +76,14 @@ class PlannerNode(ManagedNode):
         # The twin classes of the stopping rule depend on the model set only: once.
         self._twins = StoppingRule.for_model_set(self.model_set).node_class
         self._group = ReentrantCallbackGroup()
+        # One exclusive group per input topic: in the reentrant group two threads could
+        # take two messages of one topic and run their callbacks out of order. After a
+        # reset the belief node sends step 0 and at once step 1; taken as 1 then 0, the
+        # planner skipped step 1 as "from before the reset" and waited for a correction
+        # that had come (the "no belief took one" stalls of the fresh-clone runs).
+        self._belief_group = MutuallyExclusiveCallbackGroup()
+        self._observation_group = MutuallyExclusiveCallbackGroup()
+        self._diagnostics_group = MutuallyExclusiveCallbackGroup()
         self._belief_lock = threading.Condition()
         self._belief_msg = None
         self._before_reset = False  # a reset was asked for; its belief (step 0) not yet in
@@ -109,13 +117,13 @@ class PlannerNode(ManagedNode):
         # A deep reader: a burst on the topic must not push out the belief not yet taken.
         self._belief_sub = self.health.subscribe(
             Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
-            callback_group=self._group)
+            callback_group=self._belief_group)
         self._observation_sub = self.health.subscribe(
             AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
-            callback_group=self._group)
+            callback_group=self._observation_group)
         # The belief node's own account, quoted when an episode gets no observation.
         self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10,
-                                 callback_group=self._group)
+                                 callback_group=self._diagnostics_group)
         self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
                                                callback_group=self._group)

@@ -7,6 +7,7 @@ import pathlib
 import signal
 import subprocess
 import sys
+import time
 
 import pytest
 
@@ -53,6 +54,16 @@ class Received(list):
 
     def matched(self):
         return self.subscription.get_publisher_count() >= 1
+
+
+def undecided_belief(models, step, stamp_ns):
+    """A belief of a stand-in belief node: two models at 0.5 each, so the planner plans."""
+    msg = Belief(step=step, total_models=models.num_models,
+                 object_ids=list(models.names[:2]), probabilities=[0.5, 0.5])
+    msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
+    msg.node_indices = [0, STATES_PER_MODEL]
+    msg.node_probabilities = [0.5, 0.5]
+    return msg
 
 
 def start_belief(ros_processes):
@@ -326,18 +337,9 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
     beliefs = node.create_publisher(Belief, '/abp/belief', LATCHED)
     resets = []
 
-    def belief(step, stamp_ns):
-        # Two models at 0.5 each: undecided, so the planner plans.
-        msg = Belief(step=step, total_models=models.num_models,
-                     object_ids=list(models.names[:2]), probabilities=[0.5, 0.5])
-        msg.header.stamp = Time(nanoseconds=stamp_ns).to_msg()
-        msg.node_indices = [0, STATES_PER_MODEL]
-        msg.node_probabilities = [0.5, 0.5]
-        return msg
-
     def on_reset(request, response):
         now_ns = node.get_clock().now().nanoseconds
-        beliefs.publish(belief(0, now_ns + 10**14))   # 1e5 s ahead
+        beliefs.publish(undecided_belief(models, 0, now_ns + 10**14))   # 1e5 s ahead
         resets.append(now_ns)
         response.success = True
         return response
@@ -355,11 +357,73 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
     send = action_client.send_goal_async(Recognize.Goal())
     assert spin(executor, send.done, 10) and send.result().accepted
     assert spin(executor, lambda: resets, 30), 'the planner did not reset the belief'
-    beliefs.publish(belief(1, node.get_clock().now().nanoseconds))
+    beliefs.publish(undecided_belief(models, 1, node.get_clock().now().nanoseconds))
     assert spin(executor, lambda: plans, 30), \
         ''.join(ros_processes.wait_for_line(planner, 'recognition finished', 30))
     log = ''.join(ros_processes.wait_for_line(planner, 'stamp_future', 10))
     assert 'rejected input on /abp/belief (stamp_future)' in log, log
+
+
+def test_the_reset_belief_and_the_first_correction_are_taken_in_order(monkeypatch):
+    """After a reset the belief node publishes step 0 and, with the next frame, step 1. The
+    planner (in this process, on the multi-threaded executor its main() uses) must take
+    them in that order: taken as 1 then 0, step 1 was skipped as "from before the reset"
+    and the episode waited for a correction that had already come. Fault injection
+    widens the window: checking the step-0 belief takes 0.5 s, time enough for a second
+    executor thread to take step 1 if the topic's callbacks may run side by side."""
+    import threading
+
+    from rclpy.executors import MultiThreadedExecutor
+
+    from abp_common import input_checks
+    from abp_planner.planner_node import PlannerNode
+
+    check_belief = input_checks.belief
+
+    def slow_for_step_0(msg, num_nodes):
+        if msg.step == 0:
+            time.sleep(0.5)
+        return check_belief(msg, num_nodes)
+
+    monkeypatch.setattr(input_checks, 'belief', slow_for_step_0)
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=['--ros-args', '-p', 'model_set:=robot',
+                                      '-p', f'seed:={SEED}', '-p', 'autostart:=false'])
+    executor = MultiThreadedExecutor(num_threads=4, context=context)
+    planner = stand_in = spinner = None
+    try:
+        planner = PlannerNode(context=context)
+        planner.trigger_configure()
+        planner.trigger_activate()
+        assert planner.state_label() == 'active'
+        stand_in = rclpy.create_node('belief_stand_in', context=context)
+        beliefs = stand_in.create_publisher(Belief, '/abp/belief', LATCHED)
+        executor.add_node(planner)
+        executor.add_node(stand_in)
+        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner.start()
+        matched = threading.Event()
+        timer = stand_in.create_timer(
+            0.05, lambda: beliefs.get_subscription_count() >= 1 and matched.set())
+        assert matched.wait(30), 'the planner did not subscribe to /abp/belief'
+        stand_in.destroy_timer(timer)
+        with planner._belief_lock:     # what reset_belief() does before the reset call
+            planner._before_reset = True
+        models = robot_set(seed=SEED)
+        now_ns = stand_in.get_clock().now().nanoseconds
+        beliefs.publish(undecided_belief(models, 0, now_ns))
+        beliefs.publish(undecided_belief(models, 1, now_ns))
+        first = planner.wait_for_belief(lambda b: b.step >= 1, 10.0)
+        assert first is not None and first.step == 1, \
+            f'the planner holds step {planner._belief_msg and planner._belief_msg.step}'
+    finally:
+        executor.shutdown()
+        if spinner is not None:
+            spinner.join(timeout=10)
+        for node in (stand_in, planner):
+            if node is not None:
+                node.destroy_node()
+        rclpy.try_shutdown(context=context)
 
 
 def test_cancel_stops_the_loop(ros_processes, client, spin, answering):

@@ -16,6 +16,7 @@ import numpy as np
 from builtin_interfaces.msg import Duration as DurationMsg
 from geometry_msgs.msg import Twist
 from nav_msgs.msg import Odometry
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration as RclpyDuration
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -42,14 +43,16 @@ class RobotInputs:
 
     def __init__(self, node):
         self.node = node
-        group = node.callback_group
         health = node.health
         self._observation_stamps = health.stamp_check()
+        # Each topic on its own exclusive group: in the node's reentrant group two threads
+        # could take two messages of one topic and store the older one last.
         health.subscribe(JointState, names.JOINT_STATES, self._on_joint_states,
-                         RELIABLE, callback_group=group)
-        health.subscribe(Odometry, names.ODOM, self._on_odom, RELIABLE, callback_group=group)
+                         RELIABLE, callback_group=MutuallyExclusiveCallbackGroup())
+        health.subscribe(Odometry, names.ODOM, self._on_odom, RELIABLE,
+                         callback_group=MutuallyExclusiveCallbackGroup())
         health.subscribe(AspectObservation, names.ASPECT_OBSERVATION, self._on_observation,
-                         RELIABLE, callback_group=group)
+                         RELIABLE, callback_group=MutuallyExclusiveCallbackGroup())
 
     def _on_joint_states(self, msg):
         input_checks.joint_state(msg)

@@ -47,7 +47,7 @@ from functools import partial
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from std_msgs.msg import String
 
@@ -105,8 +105,9 @@ class SkillsNode(ManagedNode):
         self.claim = SkillClaim(self.get_fully_qualified_name(),
                                 lambda text: self._active_pub.publish(String(data=text)),
                                 self._active_publishers)
+        # In order (an exclusive group): a peer's claim and its release must not swap.
         self.health.subscribe(String, names.SKILLS_ACTIVE, self._on_skills_state,
-                              LATCHED_READER, callback_group=self.callback_group)
+                              LATCHED_READER, callback_group=MutuallyExclusiveCallbackGroup())
         self.actions = SkillActionServers(self, skills)
         self.feasibility = (FeasibilityService(self) if self._values['feasibility_service']
                             else None)

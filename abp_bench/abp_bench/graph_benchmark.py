@@ -2,6 +2,7 @@
 
     graph_benchmark --episodes 20 [--world mujoco|rules] [--faults] [--models robot]
                     [--planner cost] [--seed S] [--json FILE] [--no-build] [--record DIR]
+                    [--objects I [I ...] --repeats K] [--vary-start]
 
 Each episode is one `scripts/start_graph.sh` run (every node its own process,
 over DDS) with a seeded hidden cube from the model set; the result is compared
@@ -13,6 +14,10 @@ docs/SIM_BRIDGE.md). A probe subscribed to /camera/image_raw and /abp/belief mea
 the wall-clock latency from an image to the belief update it caused (matched by header
 stamp). --record DIR keeps one rosbag2 bag per episode (DIR/episode-NN-object-I) and
 DIR/labels.yaml (bag -> true object): the input of `episode_trace` and `learn_atg --bags`.
+--objects and --repeats choose the hidden cubes instead of the seeded draw (the listed
+model indices, in --repeats rounds), and --vary-start gives each episode its own cube
+start (up face, yaw) and failure seed, so that repeated episodes of one cube are
+different experience.
 Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
 """
 
@@ -114,7 +119,16 @@ class LatencyProbe:
 
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='graph_benchmark', description=__doc__.split('\n\n')[0])
-    parser.add_argument('--episodes', type=int, default=20)
+    parser.add_argument('--episodes', type=int, default=None,
+                        help='episodes, each a hidden cube drawn with --seed (default 20; '
+                        'not with --objects)')
+    parser.add_argument('--objects', type=int, nargs='+', metavar='I', default=None,
+                        help='hidden cubes by model index, in this order, instead of the draw')
+    parser.add_argument('--repeats', type=int, default=1,
+                        help='with --objects: episodes per listed cube (default 1)')
+    parser.add_argument('--vary-start', action='store_true',
+                        help="each episode draws the cube's up face, yaw and the sim "
+                        "bridge's failure seed from (--seed, episode number)")
     parser.add_argument('--world', choices=('mujoco', 'rules'), default='mujoco',
                         help='the sim bridge world (default mujoco, as start_graph.sh)')
     parser.add_argument('--no-build', action='store_true',
@@ -130,9 +144,50 @@ def parse_args(argv):
                         help='record each episode to a bag in DIR (a new or empty directory) '
                         'and write DIR/labels.yaml')
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error('--repeats must be >= 1')
+    if args.objects is None:
+        if args.repeats > 1:
+            parser.error('--repeats needs --objects')
+        args.episodes = 20 if args.episodes is None else args.episodes
+    elif args.episodes is not None:
+        parser.error('--episodes and --objects exclude each other')
+    else:
+        args.episodes = len(args.objects) * args.repeats
     if args.episodes < 1:
         parser.error('--episodes must be >= 1')
     return args
+
+
+def episode_objects(args, count):
+    """The hidden cube (model index) of each episode: --objects in rounds (each listed cube
+    once per round, --repeats rounds, so that a run stopped early has covered every cube
+    about equally), or a seeded draw from the model set's `count` models."""
+    if args.objects is None:
+        return [int(i) for i in np.random.default_rng(args.seed).choice(
+            count, size=args.episodes, replace=args.episodes > count)]
+    unknown = [i for i in args.objects if not 0 <= i < count]
+    if unknown:
+        raise SystemExit(f'graph_benchmark: --objects {unknown} not in the model set '
+                         f'(indices 0-{count - 1})')
+    return list(args.objects) * args.repeats
+
+
+def episode_params(args, number):
+    """The sim bridge parameters (YAML) of episode `number`: the fault injection, and with
+    --vary-start a start and failure seed of its own (seeded, so a run can be repeated).
+    The yaw is a 45° step +-5°, away from the boundary between two discrete states, so that
+    the ground truth's state is the one the robot sees."""
+    text = FAULTS_YAML if args.faults else ''
+    if args.vary_start:
+        rng = np.random.default_rng([args.seed, number])
+        yaw = np.deg2rad(45.0 * int(rng.integers(8)) - 180.0 + rng.uniform(-5.0, 5.0))
+        start = (f'    cube_up_face: {int(rng.integers(6))}\n'
+                 f'    cube_yaw: {float(yaw):.4f}\n'
+                 f'    failure_seed: {1000 * args.seed + number}\n'
+                 f'    distractor_seed: {1000 * args.seed + number}\n')
+        text = (text or '/**/sim_bridge:\n  ros__parameters:\n') + start
+    return text
 
 
 def record_dir(path):
@@ -249,22 +304,20 @@ def main(argv=None):
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     model_names = model_set_of(args.models, args.seed).names
-    count = len(model_names)
-    objects = np.random.default_rng(args.seed).choice(count, size=args.episodes,
-                                                      replace=args.episodes > count)
+    objects = episode_objects(args, len(model_names))
     record = record_dir(args.record) if args.record else None
     labels = []
     probe = LatencyProbe()
     results = []
     with tempfile.TemporaryDirectory(prefix='abp-graph-bench-') as tmp:
         workdir = pathlib.Path(tmp)
-        params_file = None
-        if args.faults:
-            params_file = workdir / 'faults.yaml'
-            params_file.write_text(FAULTS_YAML)
         try:
             for number, index in enumerate(objects, 1):
                 probe.new_episode()
+                params = episode_params(args, number)
+                params_file = workdir / f'params-{number}.yaml' if params else None
+                if params_file:
+                    params_file.write_text(params)
                 bag = record / f'episode-{number:02d}-object-{index}' if record else None
                 result = run_episode(args, int(index), workdir, params_file, bag)
                 results.append(result)

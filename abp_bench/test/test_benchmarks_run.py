@@ -3,7 +3,9 @@
 import json
 
 import cv2
+import numpy as np
 import pytest
+import yaml
 
 from abp_bench import (
     filter_benchmark,
@@ -50,6 +52,38 @@ def test_graph_benchmark_records_into_a_new_or_empty_directory_only(tmp_path):
     (tmp_path / 'new' / 'bags' / 'labels.yaml').write_text('old: c0-1-2-3-4-5/u\n')
     with pytest.raises(SystemExit, match='must be a new or empty directory'):
         graph_benchmark.record_dir(tmp_path / 'new' / 'bags')
+
+
+def test_graph_benchmark_runs_listed_cubes_from_starts_of_their_own():
+    args = graph_benchmark.parse_args(['--objects', '3', '7', '--repeats', '2', '--vary-start',
+                                       '--faults'])
+    assert args.episodes == 4
+    assert graph_benchmark.episode_objects(args, 30) == [3, 7, 3, 7]
+    with pytest.raises(SystemExit, match=r'--objects \[30\] not in the model set'):
+        graph_benchmark.episode_objects(graph_benchmark.parse_args(['--objects', '30']), 30)
+    starts = [yaml.safe_load(graph_benchmark.episode_params(args, n))['/**/sim_bridge']
+              ['ros__parameters'] for n in (1, 2, 3, 4)]
+    assert all(s['p_slip_grasp'] == 0.1 for s in starts)          # the faults stay
+    assert len({s['failure_seed'] for s in starts}) == 4
+    assert len({(s['cube_up_face'], s['cube_yaw']) for s in starts}) == 4
+    for s in starts:
+        assert s['cube_up_face'] in range(6)
+        step = np.rad2deg(s['cube_yaw']) / 45.0
+        assert abs(step - round(step)) <= 5.0 / 45.0 + 1e-9    # a 45 deg step +-5 deg
+    assert graph_benchmark.episode_params(args, 2) == graph_benchmark.episode_params(args, 2)
+    assert graph_benchmark.episode_params(graph_benchmark.parse_args([]), 1) == ''
+
+
+@pytest.mark.parametrize('argv, message', [
+    (['--repeats', '2'], '--repeats needs --objects'),
+    (['--objects', '1', '--episodes', '3'], '--episodes and --objects exclude each other'),
+    (['--objects', '1', '--repeats', '0'], '--repeats must be >= 1'),
+    (['--episodes', '0'], '--episodes must be >= 1'),
+])
+def test_graph_benchmark_refuses_conflicting_episode_options(argv, message, capsys):
+    with pytest.raises(SystemExit):
+        graph_benchmark.parse_args(argv)
+    assert message in capsys.readouterr().err
 
 
 def test_graph_benchmark_summary_table():

@@ -250,12 +250,20 @@ def test_learn_atg_cli(tmp_path, capsys):
     assert 'no such file' in capsys.readouterr().err
 
 
-def test_learner_is_fast():
-    # 1040 transitions (the N = 20 survey's size), pooled and estimated.
+def test_learner_takes_a_survey_sized_experience():
+    # 1040 transitions (the N = 20 survey's size), pooled and estimated. Its speed is a
+    # benchmark figure (`learn_atg` prints it; docs/BENCHMARKS.md), not a timed test.
     rng = np.random.default_rng(0)
     a = rng.integers(0, len(ACTIONS), 1040)
     m = rng.integers(0, 7, 1040)
     s = rng.integers(0, 48, 1040)
     exp = L.Experience(a, m, s, s, np.ones(1040))
     learned = L.learn(exp)
-    assert learned.info['learn_s'] < 1.0
+    assert learned.info['transitions'] == 1040 and learned.info['learn_s'] >= 0.0
+    np.testing.assert_allclose(learned.probs.sum(axis=3), 1.0)
+    seen = learned.trials > 0
+    # Every transition seen went to its own start: a seen row's most likely next state is
+    # its start unless the prior outweighs a single trial there.
+    rows = np.argwhere(seen & (learned.trials >= 3))
+    assert rows.size
+    assert all(learned.probs[i, j, k].argmax() == k for i, j, k in rows)

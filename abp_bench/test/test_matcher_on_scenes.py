@@ -2,7 +2,6 @@
 view frame, missed tags, distractors, sampled distances, speed on the 1470 set and the
 robot's working pose. The matcher on ideal features: abp_perception/test/test_matcher.py."""
 
-import time
 
 import numpy as np
 import pytest
@@ -111,24 +110,6 @@ def test_sampled_distances_agree_with_propagation(full_models, scenes, detector)
     _, feats = observe(scenes, detector, faces, 19)
     sampled = AspectMatcher(full_models, distance_samples=200, seed=3).match(feats)
     assert sampled.best.key == cube.aspect_of(faces, 19)
-
-
-def test_matching_is_fast_on_the_full_set(full_models, full_matcher, scenes, detector):
-    rng = np.random.default_rng(4)
-    observations = []
-    for _ in range(12):
-        model, state = int(rng.integers(full_models.num_models)), int(rng.integers(48))
-        distractors = [floor_tag(int(rng.integers(7)), 0.8, 0.4), upright_tag(41, 0.9, -0.45)]
-        _, feats = observe(scenes, detector, full_models.faces[model], state,
-                           distractors=distractors)
-        observations.append(feats)
-    times = []
-    for feats in observations * 3:
-        t0 = time.perf_counter()
-        full_matcher.match(feats)
-        times.append(time.perf_counter() - t0)
-    # Goal: 5 ms; generous here for loaded CI machines.
-    assert np.median(times) < 0.02
 
 
 def test_robot_working_pose_grazing_side_faces(full_models, full_matcher, detector):

@@ -1,5 +1,3 @@
-import time
-
 import cv2
 import numpy as np
 import pytest
@@ -239,23 +237,3 @@ def test_camera_behind_or_inside_cube_does_not_crash():
     for eye in ([0.052, 0.0, 0.05], [0.0, 0.0, 0.3], [3.0, 0.0, 0.02]):
         r.render(look_at(eye, [0.0, 0.0, 0.05]), cube, TAGS)
     r.render(look_at([1.0, 0.0, 0.5], [2.0, 0.0, 0.5]), cube, TAGS)  # cube behind the camera
-
-
-def test_render_is_fast_enough():
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        r = ArcubeRenderer(K, W, H, effects=MILD)
-        cube = cube_pose(45)
-        cam = camera_looking_at(cube[:3, 3], 0.8, 35)
-        r.render(cam, cube, TAGS)
-        times = []
-        for _ in range(30):
-            t0 = time.perf_counter()
-            r.render(cam, cube, TAGS)
-            times.append(time.perf_counter() - t0)
-    finally:
-        cv2.setNumThreads(threads)
-    # 30 Hz needs 33 ms; allow headroom for a loaded CI machine (abp_bench measures it).
-    assert np.median(times) < 0.05
-

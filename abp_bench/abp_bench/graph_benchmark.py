@@ -306,6 +306,7 @@ def main(argv=None):
     model_names = model_set_of(args.models, args.seed).names
     objects = episode_objects(args, len(model_names))
     record = record_dir(args.record) if args.record else None
+    interrupted = False
     labels = []
     probe = LatencyProbe()
     results = []
@@ -330,19 +331,25 @@ def main(argv=None):
                       f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",
                       file=sys.stderr, flush=True)
         except KeyboardInterrupt:
-            print('[graph_benchmark] interrupted; the running graph was stopped',
-                  file=sys.stderr)
-            return 130
+            # The finished episodes are still summarised and written: a long run stopped
+            # early keeps what it measured.
+            interrupted = True
+            print(f'[graph_benchmark] interrupted; the running graph was stopped; the '
+                  f'summary covers the {len(results)} finished episodes', file=sys.stderr)
         finally:
             probe.close()
+    if not results:
+        return 130
     table = summarise(results, probe.latencies_ms, probe.observation_latencies_ms, args)
     print(table)
     if args.json:
         with open(args.json, 'w') as out:
-            json.dump({'args': vars(args), 'results': results,
+            json.dump({'args': vars(args), 'interrupted': interrupted, 'results': results,
                        'latencies_ms': probe.latencies_ms,
                        'observation_latencies_ms': probe.observation_latencies_ms}, out,
                       indent=2)
+    if interrupted:
+        return 130
     return 0 if all(r['correct'] for r in results) else 1
 
 

@@ -1,6 +1,7 @@
 """Every benchmark CLI runs end to end at tiny sizes (no ROS graph) and prints its table."""
 
 import json
+import signal
 
 import cv2
 import numpy as np
@@ -84,6 +85,34 @@ def test_graph_benchmark_refuses_conflicting_episode_options(argv, message, caps
     with pytest.raises(SystemExit):
         graph_benchmark.parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_an_interrupted_graph_benchmark_keeps_its_finished_episodes(tmp_path, monkeypatch,
+                                                                    capsys):
+    # The episodes themselves are the graph's (tests/test_end_to_end.py); here the second
+    # episode is interrupted as Ctrl-C or SIGTERM would interrupt it.
+    finished = []
+
+    def one_episode_then_ctrl_c(args, index, workdir, params_file, bag=None):
+        if finished:
+            raise KeyboardInterrupt
+        finished.append(index)
+        return dict(object=index, hung=False, correct=True, success=True, actions=3,
+                    elapsed_s=30.0, wall_s=5.0)
+
+    monkeypatch.setattr(graph_benchmark, 'run_episode', one_episode_then_ctrl_c)
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    out = tmp_path / 'run.json'
+    try:
+        assert graph_benchmark.main(['--objects', '1', '2', '--json', str(out)]) == 130
+    finally:
+        for sig, handler in handlers.items():      # main() installs its own
+            signal.signal(sig, handler)
+    data = json.loads(out.read_text())
+    assert data['interrupted'] is True and [r['object'] for r in data['results']] == [1]
+    captured = capsys.readouterr()
+    assert '| correct | 1/1 (100.0 %) |' in captured.out
+    assert 'the summary covers the 1 finished episodes' in captured.err
 
 
 def test_graph_benchmark_summary_table():

@@ -45,9 +45,9 @@ from abp_msgs.msg import AspectObservation, Belief
 
 from .episode_trace import model_set_of
 
-FAULTS_YAML = """/**/sim_bridge:
-  ros__parameters:
-    p_slip_grasp: 0.1
+# The sim bridge's section of a --params file, in any namespace.
+SIM_BRIDGE_PARAMS = '/**/sim_bridge:\n  ros__parameters:\n'
+FAULTS_YAML = SIM_BRIDGE_PARAMS + """    p_slip_grasp: 0.1
     p_missed_push: 0.1
     p_missed_tag: 0.1
     distractors: 2
@@ -186,7 +186,7 @@ def episode_params(args, number):
                  f'    cube_yaw: {float(yaw):.4f}\n'
                  f'    failure_seed: {1000 * args.seed + number}\n'
                  f'    distractor_seed: {1000 * args.seed + number}\n')
-        text = (text or '/**/sim_bridge:\n  ros__parameters:\n') + start
+        text = (text or SIM_BRIDGE_PARAMS) + start
     return text
 
 

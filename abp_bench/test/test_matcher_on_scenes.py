@@ -1,7 +1,7 @@
 """Aspect matching (Alg. 2) on rendered ARcube states (abp_bench.scenes): right aspect,
-view frame, missed tags, distractors, sampled distances, speed on the 1470 set and the
-robot's working pose. The matcher on ideal features: abp_perception/test/test_matcher.py."""
-
+view frame, missed tags, distractors, sampled distances and the robot's working pose (its
+speed: perception_benchmark). The matcher on ideal features:
+abp_perception/test/test_matcher.py."""
 
 import numpy as np
 import pytest

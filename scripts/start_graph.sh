@@ -17,6 +17,9 @@
 #                        flat renderer; fast)                            (default mujoco)
 #   --object N           hidden cube in sim: index into the model set (default: seeded random)
 #   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
+#   --tables T           hand-written ATG table of a generated set (docs/MODEL.md): corrected
+#                        | paper (default paper in the rules world, whose physics it is, else
+#                        corrected); a models file carries its own tables
 #   --planner MODE       random | abp | abp2 | abp3 | cost                   (default cost)
 #   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
 #   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
@@ -38,8 +41,9 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
+tables=""
 respawn=1; serve=0
-usage() { sed -n '2,33p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,38p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -50,6 +54,7 @@ while [ $# -gt 0 ]; do
     --serve) serve=1; shift ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
+    --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a value}"; shift 2 ;;
     --params) params="${2:?--params needs a file}"; shift 2 ;;
@@ -65,6 +70,8 @@ while [ $# -gt 0 ]; do
   esac
 done
 [[ "$world" =~ ^(mujoco|rules)$ ]] || die "--world must be mujoco or rules"
+[ -n "$tables" ] || { [ "$world" = rules ] && [ "$robot" = 0 ] && tables=paper || tables=corrected; }
+[[ "$tables" =~ ^(corrected|paper)$ ]] || die "--tables must be corrected or paper"
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
 [[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
@@ -74,7 +81,7 @@ namespace="${namespace#/}"; namespace="${namespace%/}"
   || die "--namespace must be a ROS namespace such as robot1"
 
 # Model-set parameters shared by every node that loads the model set: one `/**:` file.
-model_yaml=(seed "$seed")
+model_yaml=(seed "$seed" transition_rules "$tables")
 case "$models" in
   robot|full|visual) model_yaml+=(model_set "$models") ;;
   random:*) [[ "${models#random:}" =~ ^[0-9]+$ ]] || die "--models random:N needs a number N"
@@ -197,7 +204,7 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo "sim ($world world)" ) graph${namespace:+ under /$namespace}, models $models, planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo "sim ($world world)" ) graph${namespace:+ under /$namespace}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
 if [ "$robot" = 0 ]; then
   start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
     -p "cube_seed:=$seed" -p "speedup:=$speedup"

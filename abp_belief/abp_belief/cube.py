@@ -218,6 +218,62 @@ def nominal_rotation(action, mass_index, state) -> np.ndarray:
     return np.eye(3)                                                  # d = -z: already at rest
 
 
+# The two hand-written transition tables (docs/MODEL.md, "Actions and their physics"):
+# `paper` is the table as the paper wrote it (Table II is reproduced with it); `corrected`
+# is that table with the cells the MuJoCo outcome survey showed wrong (issue 12) rewritten
+# from the physics.
+TRANSITION_RULES = ('corrected', 'paper')
+
+
+def check_transition_rules(rules) -> str:
+    if rules not in TRANSITION_RULES:
+        raise ValueError(f"transition rules must be one of {', '.join(TRANSITION_RULES)}, "
+                         f'got {rules!r}')
+    return rules
+
+
+def nominal_outcomes(action, mass_index, state,
+                     rules='corrected') -> list[tuple[np.ndarray, float]]:
+    """The successful outcomes of an action as (rotation Q in V, weight) pairs, weights
+    summing to 1, under the `paper` or the `corrected` rules of MODEL.md."""
+    if check_transition_rules(rules) == 'paper':
+        return [(nominal_rotation(action, mass_index, state), 1.0)]
+    name = ACTIONS[action_index(action)]
+    s = _check_state(state)
+    if name in ORBIT_STEPS:
+        return [(rot_z_deg(45.0 * ORBIT_STEPS[name]), 1.0)]
+    d = mass_direction(mass_index, s)
+    if name == 'PUSH':
+        # The skill's 5 cm stroke turns even a side-heavy cube only ~12 deg: it slides.
+        return [(np.eye(3), 1.0)]
+    if STATE_YAW[s] % 2 == 1:
+        if name == 'LIFT' and d is not None and abs(d[2]) < _TOL:
+            # The pads squeeze two vertical edges; the heavy side swings down about the
+            # hand axis (y) and the cube, set down on an edge, falls either way: heavy face
+            # down, or heavy face towards the robot's side it was on.
+            swing = rot_y(90.0 * np.sign(d[0]))
+            side = np.sign(d[1])
+            return [(rot_x(-45.0 * side) @ swing, 0.5), (rot_x(45.0 * side) @ swing, 0.5)]
+        return [(np.eye(3), 1.0)]                                    # no face contact
+    if name == 'LIFT':
+        # A firm grip holds a top-heavy cube level; only a front/back-heavy one swings.
+        if _is(d, [1, 0, 0]):
+            return [(rot_y(90.0), 1.0)]
+        if _is(d, [-1, 0, 0]):
+            return [(rot_y(-90.0), 1.0)]
+        return [(np.eye(3), 1.0)]
+    # FLIP: the hands hold the ±y faces, so the roll is about y whatever the side mass.
+    if _is(d, [0, 0, 1]):
+        # The quarter roll leaves the heavy face towards the robot: it stays or tips on.
+        return [(rot_y(180.0), 0.5), (rot_y(-90.0), 0.5)]
+    if _is(d, [0, 0, -1]):
+        return [(np.eye(3), 1.0)]
+    if _is(d, [1, 0, 0]):
+        # The roll lifts the heavy face first: the grip slips, rolls it, or it rolls back.
+        return [(np.eye(3), 1 / 3), (rot_y(-90.0), 1 / 3), (rot_y(90.0), 1 / 3)]
+    return [(rot_y(-90.0), 1.0)]                                     # uniform, -x, +-y
+
+
 def apply_rotation(rotation, state) -> int:
     """Successor state after rotating the cube by `rotation` (in V) from `state`."""
     return state_from_rotation(np.asarray(rotation) @ STATE_ROTATIONS[_check_state(state)])

@@ -28,6 +28,8 @@ import time
 import numpy as np
 
 from . import atg_from_bags, atg_learning, model_file, population
+from .cube import TRANSITION_RULES
+from .modelset import TransitionParams
 
 SETS = ('robot', 'full', 'random', 'visual')
 
@@ -84,6 +86,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "as 'no change' (atg_learning.with_contact_faults); e.g. 0.1, the model "
                    "set's p_fail_*. For experience without robot faults (the survey); the "
                    "robot's own bags already hold its faults. Default 0")
+    p.add_argument('--tables', choices=TRANSITION_RULES, default='corrected',
+                   help="the hand-written table (docs/MODEL.md) that is the prior mean, the "
+                   "report's comparison and, with --bags, the tables the states are inferred "
+                   "with: corrected (default) or paper")
     p.add_argument('--report', metavar='MD', help='write learned vs hand-written (Markdown)')
     p.add_argument('--json', action='store_true', help='print a JSON summary')
     return p
@@ -92,13 +98,15 @@ def build_parser() -> argparse.ArgumentParser:
 def _population(args):
     if args.population:
         return model_file.load(args.population)
+    params = TransitionParams(rules=args.tables)
     if args.which == 'full':
-        return population.full_set(args.tags)
+        return population.full_set(args.tags, transition_params=params)
     if args.which == 'visual':
-        return population.visual_set(args.tags)
+        return population.visual_set(args.tags, transition_params=params)
     if args.which == 'random':
-        return population.random_visual_subset(args.size, n_tags=args.tags, seed=args.seed)
-    return population.robot_set(seed=args.seed, n_tags=args.tags)
+        return population.random_visual_subset(args.size, n_tags=args.tags, seed=args.seed,
+                                               transition_params=params)
+    return population.robot_set(seed=args.seed, n_tags=args.tags, transition_params=params)
 
 
 def _fault_rates(args) -> dict:
@@ -135,20 +143,22 @@ def main(argv=None) -> int:
                                      epsilon=args.epsilon,
                                      neighbourhood_kind=args.neighbourhood,
                                      pool=not args.no_pool,
-                                     fault_rates=_fault_rates(args))
+                                     fault_rates=_fault_rates(args),
+                                     params=TransitionParams(rules=args.tables))
         t_learn = time.perf_counter() - t0
         models = atg_learning.with_tables(base or _population(args), learned)
     except (ValueError, model_file.ModelFileError) as exc:
         print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2
-    hand = atg_learning.hand_table()
+    hand = atg_learning.hand_table(TransitionParams(rules=args.tables))
     tv = atg_learning.total_variation(learned.probs, hand)
     try:
         if args.out:
             model_file.save(models, args.out)
         if args.report:
             with open(args.report, 'w') as stream:
-                stream.write(atg_learning.comparison_markdown(learned, hand))
+                stream.write(atg_learning.comparison_markdown(
+                    learned, hand, f'Learned vs hand-written ({args.tables}) ATG tables'))
     except OSError as exc:
         print(f'{parser.prog}: error: cannot write: {exc}', file=sys.stderr)
         return 1

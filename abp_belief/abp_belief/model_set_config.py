@@ -3,7 +3,8 @@ declares (belief, planner, aspect matcher, sim bridge): they must agree, so the 
 ranges and meanings exist once. `abp_bringup/config/abp.yaml` sets them once for the
 whole graph under `/**:`.
 
-`POPULATION_SPECS` choose the models; `NOISE_SPECS` are the observation and transition
+`POPULATION_SPECS` choose the models, `TRANSITION_RULES_SPEC` the hand-written table of a
+generated set; `NOISE_SPECS` are the observation and transition
 noise of the ATGs (docs/MODEL.md). Nodes declare them with
 `abp_common.parameters.declare_all` and build the set with `model_set_from_values`.
 """
@@ -13,6 +14,7 @@ from dataclasses import fields
 from abp_common.param_spec import INT, STRING, ParamSpec, probability
 
 from . import population
+from .cube import TRANSITION_RULES
 from .modelset import TransitionParams
 from .observation import ObservationParams
 
@@ -31,11 +33,19 @@ POPULATION_SPECS = (
     ParamSpec('seed', INT, 0, 'Seed for the random and robot model sets.', (0, 2**31 - 1),
               read_only=True),
 )
+# The ATG tables of a generated set; the sim bridge's worlds never read them.
+TRANSITION_RULES_SPEC = ParamSpec(
+    'transition_rules', STRING, 'corrected', 'Hand-written ATG table of a generated set '
+    "(docs/MODEL.md): corrected (the paper's table with the cells the MuJoCo outcome survey "
+    'showed wrong rewritten from the physics) or paper (as the paper wrote it; the rules '
+    "world's physics). A model_file carries its own tables.", read_only=True,
+    choices=TRANSITION_RULES)
+_DEFAULTS = {f.name: f.default for f in fields(ObservationParams) + fields(TransitionParams)}
 NOISE_SPECS = tuple(
-    probability(f.name, f.default, f'Model noise: {f.name.replace("_", " ")} (see '
+    probability(name, _DEFAULTS[name], f'Model noise: {name.replace("_", " ")} (see '
                 'docs/MODEL.md).', upper=0.5, read_only=True)
-    for f in fields(ObservationParams) + fields(TransitionParams))
-MODEL_SET_SPECS = POPULATION_SPECS + NOISE_SPECS
+    for name in tuple(f.name for f in fields(ObservationParams)) + TransitionParams.noise_names())
+MODEL_SET_SPECS = POPULATION_SPECS + (TRANSITION_RULES_SPEC,) + NOISE_SPECS
 # Parameters that define the model set: changing them needs a restart.
 MODEL_SET_PARAMETERS = tuple(p.name for p in MODEL_SET_SPECS)
 
@@ -51,8 +61,9 @@ def model_set_from_values(values):
         observation_params=ObservationParams(
             **{f.name: values[f.name] for f in fields(ObservationParams)}),
         transition_params=TransitionParams(
-            **{f.name: values[f.name] for f in fields(TransitionParams)}))
+            rules=values['transition_rules'],
+            **{name: values[name] for name in TransitionParams.noise_names()}))
 
 
 __all__ = ['MODEL_SET_PARAMETERS', 'MODEL_SET_SPECS', 'NOISE_SPECS', 'POPULATION_SPECS',
-           'model_set_from_values']
+           'TRANSITION_RULES_SPEC', 'model_set_from_values']

@@ -4,6 +4,7 @@ Examples:
   models --set full --tags 7                 # 1470 models, readable summary
   models --set random --size 60 --seed 2 --out m60.npz
   models --load m60.npz --json
+  models --set robot --transition-rules paper --out robot_paper.npz
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from collections import Counter
 import numpy as np
 
 from . import model_file, population
-from .cube import MAX_TAGS, MIN_TAGS
+from .cube import MAX_TAGS, MIN_TAGS, TRANSITION_RULES
+from .modelset import TransitionParams
 
 SETS = ('full', 'random', 'robot', 'visual')
 
@@ -36,6 +38,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help='number of visual cubes for --set random (default 30)')
     parser.add_argument('--seed', type=int, default=0, metavar='S',
                         help='random seed for --set random/robot (default 0)')
+    parser.add_argument('--transition-rules', choices=TRANSITION_RULES, default='corrected',
+                        help="hand-written ATG table (docs/MODEL.md): corrected (the nodes' "
+                             "default) or paper (the paper's, as the planner benchmark uses)")
     parser.add_argument('--out', metavar='FILE', help='save the model set to FILE (.npz)')
     parser.add_argument('--load', metavar='FILE', help='load a model set from FILE instead')
     parser.add_argument('--json', action='store_true', help='print a compact JSON summary')
@@ -97,22 +102,25 @@ def main(argv=None) -> int:
     if args.size is not None and args.which != 'random':
         return _usage_error(parser, '--size only applies to --set random')
     which = args.which or 'full'
+    params = TransitionParams(rules=args.transition_rules)
     try:
         if args.load:
             model_set = model_file.load(args.load)
             description = f'loaded from {args.load}'
         elif which == 'full':
-            model_set = population.full_set(args.tags)
+            model_set = population.full_set(args.tags, transition_params=params)
             description = 'full'
         elif which == 'visual':
-            model_set = population.visual_set(args.tags)
+            model_set = population.visual_set(args.tags, transition_params=params)
             description = 'visual'
         elif which == 'random':
             size = 30 if args.size is None else args.size
-            model_set = population.random_visual_subset(size, n_tags=args.tags, seed=args.seed)
+            model_set = population.random_visual_subset(size, n_tags=args.tags, seed=args.seed,
+                                                         transition_params=params)
             description = f'random (size {size}, seed {args.seed})'
         else:
-            model_set = population.robot_set(seed=args.seed, n_tags=args.tags)
+            model_set = population.robot_set(seed=args.seed, n_tags=args.tags,
+                                             transition_params=params)
             description = f'robot (seed {args.seed})'
     except (ValueError, model_file.ModelFileError) as exc:
         return _usage_error(parser, str(exc))

@@ -7,7 +7,7 @@ matrices are built from them with array operations.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from typing import NamedTuple
 
 import numpy as np
@@ -33,13 +33,22 @@ class TransitionParams:
     p_fail_lift: float = 0.1
     p_fail_flip: float = 0.1
     p_push_neighbour: float = 0.02   # PUSH pivots the other way round (sliding: +-45 half each)
+    rules: str = 'corrected'         # nominal outcomes: cube.TRANSITION_RULES (MODEL.md)
 
     def __post_init__(self):
+        cube.check_transition_rules(self.rules)
         for name, value in asdict(self).items():
+            if name == 'rules':
+                continue
             if not (isinstance(value, (int, float)) and 0.0 <= float(value) < 1.0):
                 raise ValueError(f'TransitionParams.{name} must be in [0, 1), got {value!r}')
         if self.p_fail_push + self.p_push_neighbour >= 1.0:
             raise ValueError('TransitionParams: p_fail_push + p_push_neighbour must be < 1')
+
+    @classmethod
+    def noise_names(cls) -> tuple[str, ...]:
+        """The probability fields (all but `rules`)."""
+        return tuple(f.name for f in fields(cls) if f.name != 'rules')
 
     def fail_rates(self) -> dict:
         """Manual action name -> probability that it fails and nothing changes."""
@@ -67,8 +76,9 @@ def _state_distribution(outcomes) -> tuple[list[int], list[float]]:
 def build_outcome_tables(params: TransitionParams | None = None):
     """outcome_states / outcome_probs (len(ACTIONS), 7, 48, K) from the physics in MODEL.md.
 
-    Each nominal motion comes from ``cube.nominal_rotation`` (geometry of R and the
-    mass direction); the failure model adds the no-change / neighbour outcomes.
+    The nominal motions come from ``cube.nominal_outcomes`` under ``params.rules``
+    (geometry of R and the mass direction); the failure model adds the no-change /
+    neighbour outcomes.
     Unused slots hold the state itself with probability 0.
     """
     p = params if params is not None else TransitionParams()
@@ -84,13 +94,14 @@ def build_outcome_tables(params: TransitionParams | None = None):
                 states[a, m], probs[a, m] = states[a, 0], probs[a, 0]   # mass-independent
                 continue
             for s in range(STATES_PER_MODEL):
-                q = cube.nominal_rotation(a, m, s)
+                nominal = cube.nominal_outcomes(a, m, s, p.rules)
+                q = nominal[0][0]
                 if name in cube.ORBIT_STEPS:
                     k = cube.ORBIT_STEPS[name]
                     outcomes = [(q, 1.0 - p.p_orbit_slip),
                                 (rot_z_deg(45.0 * (k + 1)), p.p_orbit_slip / 2),
                                 (rot_z_deg(45.0 * (k - 1)), p.p_orbit_slip / 2)]
-                elif cube.STATE_YAW[s] % 2 == 1:
+                elif cube.STATE_YAW[s] % 2 == 1 and len(nominal) == 1 and np.allclose(q, eye):
                     outcomes = [(eye, 1.0)]                            # no face contact
                 elif name == 'PUSH':
                     nb = p.p_push_neighbour
@@ -100,7 +111,8 @@ def build_outcome_tables(params: TransitionParams | None = None):
                     else:                                              # pivots; neighbour = reverse
                         outcomes = [(q, 1.0 - fail[name] - nb), (eye, fail[name]), (q.T, nb)]
                 else:
-                    outcomes = [(q, 1.0 - fail[name]), (eye, fail[name])]
+                    outcomes = [(rot, (1.0 - fail[name]) * weight) for rot, weight in nominal]
+                    outcomes.append((eye, fail[name]))
                 nxt, pr = _state_distribution((rot, prob, s) for rot, prob in outcomes)
                 states[a, m, s, :len(nxt)] = nxt
                 probs[a, m, s, :len(pr)] = pr

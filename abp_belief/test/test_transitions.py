@@ -64,14 +64,15 @@ def test_orbit_changes_yaw_with_slip_and_ignores_mass():
                                          8 * up + (yaw + steps - 1) % 8: params.p_orbit_slip / 2})
 
 
-def test_manual_actions_at_odd_yaw_do_nothing(full7):
+def test_paper_manual_actions_at_odd_yaw_do_nothing(full7_paper):
     for a in MANUAL:
         for m in range(7):
             for s in range(1, 48, 2):
-                assert _outcomes(full7, ACTIONS[a], m, s) == {s: 1.0}
+                assert _outcomes(full7_paper, ACTIONS[a], m, s) == {s: 1.0}
 
 
-def test_push_pivots_mass_side_and_slides_otherwise(full7):
+def test_paper_push_pivots_mass_side_and_slides_otherwise(full7_paper):
+    full7 = full7_paper
     p = full7.transition_params
     for m in range(1, 7):
         for s in _states_with_mass_at(m, [0, 1, 0]):          # heavy right side drags: yaw - 1
@@ -105,7 +106,8 @@ def test_push_pivot_shows_a_three_feature_aspect():
     assert cube.aspect_of(faces, after) == (3, 4, 2, 0)
 
 
-def test_lift_physics(full7):
+def test_paper_lift_physics(full7_paper):
+    full7 = full7_paper
     fail = full7.transition_params.p_fail_lift
     for m in range(1, 7):
         f = m - 1
@@ -131,7 +133,8 @@ def test_lift_physics(full7):
         assert _outcomes(full7, 'LIFT', 0, s) == {s: 1.0}
 
 
-def test_flip_physics(full7):
+def test_paper_flip_physics(full7_paper):
+    full7 = full7_paper
     fail = full7.transition_params.p_fail_flip
     for s in range(0, 48, 2):
         out = _outcomes(full7, 'FLIP', 0, s)                    # uniform: front to top
@@ -183,9 +186,9 @@ def test_twins_are_indistinguishable_by_orbits(robot):
 
 @pytest.mark.parametrize('action,mass_face_dir', [('PUSH', [0, 1, 0]), ('LIFT', [0, 0, 1]),
                                                    ('FLIP', [0, -1, 0])])
-def test_manual_actions_separate_twins(robot, action, mass_face_dir):
-    members = _twin_group(robot)
-    twins = robot.subset(members)
+def test_paper_manual_actions_separate_twins(robot_paper, action, mass_face_dir):
+    members = _twin_group(robot_paper)
+    twins = robot_paper.subset(members)
     faces = twins.faces[0]
     # Pick the twin whose heavy face points along mass_face_dir in the upright start state.
     s0 = 8 * 4
@@ -200,3 +203,106 @@ def test_manual_actions_separate_twins(robot, action, mass_face_dir):
     marginal = flt.object_marginal()
     assert marginal[true_model] > 0.8
     assert marginal[true_model] == marginal.max()
+
+
+# -- the corrected table (MODEL.md: the cells the MuJoCo survey showed wrong) -------------
+
+
+def test_corrected_push_slides_whatever_the_mass(full7):
+    p = full7.transition_params
+    for m in range(7):
+        for s in range(0, 48, 2):
+            up, yaw = divmod(s, 8)
+            assert _outcomes(full7, 'PUSH', m, s) == pytest.approx(
+                {s: 1 - p.p_push_neighbour, 8 * up + (yaw + 1) % 8: p.p_push_neighbour / 2,
+                 8 * up + (yaw - 1) % 8: p.p_push_neighbour / 2})
+        for s in range(1, 48, 2):
+            assert _outcomes(full7, 'PUSH', m, s) == {s: 1.0}
+
+
+def test_corrected_lift_holds_a_top_heavy_cube_and_rolls_a_diagonal_one_at_odd_yaw(full7):
+    fail = full7.transition_params.p_fail_lift
+    for m in range(1, 7):
+        for s in _states_with_mass_at(m, [0, 0, 1]):
+            assert _outcomes(full7, 'LIFT', m, s) == {s: 1.0}
+        for d in ([1, 0, 0], [-1, 0, 0]):                       # as the paper's table
+            for s in _states_with_mass_at(m, d):
+                out = _outcomes(full7, 'LIFT', m, s)
+                (moved,) = [x for x in out if x != s]
+                assert np.allclose(_mass_dir(m, moved), [0, 0, -1])
+                assert out[moved] == pytest.approx(1 - fail)
+        for s in range(1, 48, 2):
+            d = _mass_dir(m, s)
+            out = _outcomes(full7, 'LIFT', m, s)
+            if abs(d[2]) > 0.5:                                 # heavy top or bottom: no roll
+                assert out == {s: 1.0}
+                continue
+            # Heavy face down or towards the side it was on, half each; failure: no change.
+            assert out[s] == pytest.approx(fail)
+            moved = [x for x in out if x != s]
+            assert len(moved) == 2
+            ends = sorted(tuple(np.round(_mass_dir(m, x)).astype(int)) for x in moved)
+            side = int(np.sign(d[1]))
+            assert ends == sorted([(0, 0, -1), (0, side, 0)])
+            assert all(out[x] == pytest.approx((1 - fail) / 2) for x in moved)
+            assert all(cube.STATE_YAW[x] % 2 == 0 for x in moved)
+    for s in range(48):
+        assert _outcomes(full7, 'LIFT', 0, s) == {s: 1.0}
+
+
+def test_corrected_flip_rolls_about_the_hand_axis(full7):
+    fail = full7.transition_params.p_fail_flip
+    front_to_top = cube.rot_y(-90)
+    for m in range(7):
+        for s in range(0, 48, 2):
+            d = _mass_dir(m, s) if m else None
+            out = _outcomes(full7, 'FLIP', m, s)
+            rolled = cube.apply_rotation(front_to_top, s)
+            if d is None or abs(d[1]) > 0.5 or np.allclose(d, [-1, 0, 0]):
+                assert out == pytest.approx({rolled: 1 - fail, s: fail})
+            elif np.allclose(d, [0, 0, 1]):                     # stays rolled or tips on
+                over = cube.apply_rotation(cube.rot_y(180), s)
+                assert out == pytest.approx({rolled: (1 - fail) / 2, over: (1 - fail) / 2,
+                                             s: fail})
+            elif np.allclose(d, [0, 0, -1]):
+                assert out == {s: 1.0}
+            else:                                               # heavy front: any of three
+                back = cube.apply_rotation(cube.rot_y(90), s)
+                assert out == pytest.approx({rolled: (1 - fail) / 3, back: (1 - fail) / 3,
+                                             s: fail + (1 - fail) / 3})
+        for s in range(1, 48, 2):
+            assert _outcomes(full7, 'FLIP', m, s) == {s: 1.0}
+
+
+@pytest.mark.parametrize('action,start,mass_face_dir', [
+    ('LIFT', 32, [1, 0, 0]), ('FLIP', 32, [0, 0, 1]),
+    ('LIFT', 33, [np.sqrt(0.5), np.sqrt(0.5), 0])])
+def test_corrected_manual_actions_separate_twins(robot, action, start, mass_face_dir):
+    members = _twin_group(robot)
+    twins = robot.subset(members)
+    (heavy,) = [m for m in range(1, 7) if np.allclose(_mass_dir(m, start), mass_face_dir)]
+    true_model = int(np.flatnonzero(twins.mass == heavy)[0])
+    flt = BeliefFilter(twins)
+    flt.belief[:] = 0.0
+    flt.belief[np.arange(7) * 48 + start] = 1.0 / 7             # same known start state
+    flt.predict(action)
+    (rotation, _), *_ = cube.nominal_outcomes(action, heavy, start)
+    flt.correct(cube.aspect_of(twins.faces[0], cube.apply_rotation(rotation, start)))
+    marginal = flt.object_marginal()
+    assert marginal[true_model] == marginal.max()
+    assert marginal[true_model] > 0.4
+
+
+def test_unknown_transition_rules_are_refused():
+    with pytest.raises(ValueError, match='transition rules must be one of corrected, paper'):
+        TransitionParams(rules='survey')
+    with pytest.raises(ValueError, match='transition rules'):
+        cube.nominal_outcomes('PUSH', 0, 0, rules='')
+
+
+def test_paper_rules_are_the_paper_nominal_rotation():
+    for a in range(len(ACTIONS)):
+        for m in range(7):
+            for s in range(48):
+                ((q, w),) = cube.nominal_outcomes(a, m, s, rules='paper')
+                assert w == 1.0 and np.array_equal(q, cube.nominal_rotation(a, m, s))

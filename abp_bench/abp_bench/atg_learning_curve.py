@@ -27,15 +27,17 @@ from pathlib import Path
 
 import numpy as np
 
+from abp_belief.cube import TRANSITION_RULES
 from abp_bench import planner_benchmark
 
 
-def _benchmark(models, trials, seed, world, belief=None, planner='abp'):
+def _benchmark(models, trials, seed, world, belief=None, planner='abp', tables='paper'):
     """{model-set label: summary} of planner_benchmark with these tables."""
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / 'bench.json'
         argv = ['--models', *models, '--trials', str(trials), '--planners', planner,
-                '--seed', str(seed), '--world-models', str(world), '--json', str(out)]
+                '--seed', str(seed), '--world-models', str(world), '--json', str(out),
+                '--tables', tables]
         if belief:
             argv += ['--belief-models', str(belief)]
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
@@ -46,24 +48,26 @@ def _benchmark(models, trials, seed, world, belief=None, planner='abp'):
 
 
 def run(survey, out_dir, counts=(1, 2, 5, 10, 20), draws=3, models=('robot',), trials=100,
-        seed=0, alpha=None, progress=True):
+        seed=0, alpha=None, progress=True, tables='paper'):
     from abp_belief import atg_learning, model_file, population
+    from abp_belief.modelset import TransitionParams
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     doc = json.loads(Path(survey).read_text())
     full_n = int(doc['settings']['trials'])
     alpha = atg_learning.DEFAULT_ALPHA if alpha is None else alpha
-    base = population.robot_set(seed=0)               # tables are per mass variant
+    params = TransitionParams(rules=tables)   # the hand-written table: baseline and prior
+    base = population.robot_set(seed=0, transition_params=params)  # tables per mass variant
     world_path = out / 'survey_table.npz'
     empirical = atg_learning.learn(atg_learning.experience_from_survey(doc), alpha=0.0)
     model_file.save(atg_learning.with_tables(base, empirical), world_path)
     t0 = time.perf_counter()
-    hand = _benchmark(models, trials, seed, world_path)
+    hand = _benchmark(models, trials, seed, world_path, tables=tables)
     prior_path = out / 'prior_only.npz'      # the learner with no experience: its prior mean
     no_data = atg_learning.Experience(*([np.zeros(0, dtype=int)] * 4), np.zeros(0))
-    model_file.save(atg_learning.with_tables(base, atg_learning.learn(no_data, alpha=alpha)),
-                    prior_path)
+    model_file.save(atg_learning.with_tables(
+        base, atg_learning.learn(no_data, alpha=alpha, params=params)), prior_path)
     prior_only = _benchmark(models, trials, seed, world_path, belief=prior_path)
     points = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -73,13 +77,14 @@ def run(survey, out_dir, counts=(1, 2, 5, 10, 20), draws=3, models=('robot',), t
                 t1 = time.perf_counter()
                 exp = atg_learning.experience_from_survey(
                     doc, trials_per_class=n, subsample_seed=None if n >= full_n else 1000 + d)
-                learned = atg_learning.learn(exp, alpha=alpha)
+                learned = atg_learning.learn(exp, alpha=alpha, params=params)
                 learn_s = time.perf_counter() - t1
                 path = Path(tmp) / f'learned_n{n}_d{d}.npz'
                 model_file.save(atg_learning.with_tables(base, learned), path)
                 if n >= full_n:
                     with open(out / 'learned_vs_hand.md', 'w') as stream:
-                        stream.write(atg_learning.comparison_markdown(learned))
+                        stream.write(atg_learning.comparison_markdown(
+                            learned, atg_learning.hand_table(params)))
                 tv = atg_learning.total_variation(learned.probs, empirical.probs)
                 res = _benchmark(models, trials, seed, world_path, belief=path)
                 for label, s in res.items():
@@ -92,7 +97,7 @@ def run(survey, out_dir, counts=(1, 2, 5, 10, 20), draws=3, models=('robot',), t
                         f"{k} acc {100 * v['accuracy']:.0f}% act {v['actions_mean']:.2f}"
                         for k, v in res.items()), file=sys.stderr, flush=True)
     result = dict(survey=str(survey), survey_trials=full_n, counts=list(counts), draws=draws,
-                  alpha=alpha, trials=trials, seed=seed, models=list(models),
+                  alpha=alpha, trials=trials, seed=seed, models=list(models), tables=tables,
                   hand={k: dict(accuracy=v['accuracy'], actions_mean=v['actions_mean'])
                         for k, v in hand.items()},
                   prior_only={k: dict(accuracy=v['accuracy'], actions_mean=v['actions_mean'])
@@ -151,11 +156,14 @@ def main(argv=None) -> int:
     p.add_argument('--trials', type=int, default=100, help='benchmark trials per point')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--alpha', type=float, default=None)
+    p.add_argument('--tables', choices=TRANSITION_RULES, default='paper',
+                   help="the hand-written table (docs/MODEL.md): the baseline and the "
+                   "learner's prior mean (default paper, as planner_benchmark)")
     args = p.parse_args(argv)
     if min(args.counts) < 1 or args.draws < 1 or args.trials < 1:
         p.error('--counts, --draws and --trials must be >= 1')
     result = run(args.survey, args.out, args.counts, args.draws, args.models, args.trials,
-                 args.seed, args.alpha)
+                 args.seed, args.alpha, tables=args.tables)
     for label in result['models']:
         hand = result['hand'][label]
         prior = result['prior_only'][label]

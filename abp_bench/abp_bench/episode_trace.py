@@ -26,20 +26,31 @@ from collections import Counter
 import numpy as np
 
 from abp_belief import atg_from_bags, atg_learning
-from abp_belief.cube import ACTIONS, FACE_NAMES, MANUAL_ACTIONS, MASS_NAMES, NUM_YAWS
+from abp_belief.cube import (
+    ACTIONS,
+    FACE_NAMES,
+    MANUAL_ACTIONS,
+    MASS_NAMES,
+    NUM_YAWS,
+    TRANSITION_RULES,
+)
+from abp_belief.modelset import TransitionParams
 from abp_belief.population import model_set_from_config
 from abp_common import names
 
 DEFAULT_RARE = 0.02
 
 
-def model_set_of(models, seed):
-    """The model set of start_graph.sh (and graph_benchmark) --models `models` --seed `seed`."""
+def model_set_of(models, seed, rules='corrected'):
+    """The model set of start_graph.sh (and graph_benchmark) --models `models` --seed `seed`
+    --tables `rules`."""
     if os.path.isfile(models):  # a model file, as start_graph.sh --models path/to/models.npz
         return model_set_from_config(model_file=models)
+    params = TransitionParams(rules=rules)
     if models.startswith('random:'):
-        return model_set_from_config('random', int(models.split(':')[1]), seed=seed)
-    return model_set_from_config(models, seed=seed)
+        return model_set_from_config('random', int(models.split(':')[1]), seed=seed,
+                                     transition_params=params)
+    return model_set_from_config(models, seed=seed, transition_params=params)
 
 
 def state_name(state: int) -> str:
@@ -169,6 +180,9 @@ def parse_args(argv):
     p.add_argument('--models', default='robot',
                    help='the model set the belief used, as graph_benchmark --models')
     p.add_argument('--seed', type=int, default=0, help='model-set seed (as graph_benchmark)')
+    p.add_argument('--tables', choices=TRANSITION_RULES, default='corrected',
+                   help='hand-written table of a generated set, as graph_benchmark --tables '
+                   '(paper for bags of the rules world)')
     p.add_argument('--rare', type=float, default=DEFAULT_RARE,
                    help='a transition below this table probability counts as rare')
     p.add_argument('--json', metavar='OUT', help='write every row here')
@@ -181,7 +195,7 @@ def parse_args(argv):
 def main(argv=None):
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
-        model_set = model_set_of(args.models, args.seed)
+        model_set = model_set_of(args.models, args.seed, args.tables)
         table = atg_learning.dense_table(model_set.outcome_states, model_set.outcome_probs)
         rows = []
         for bag, label in atg_from_bags.load_labels(args.bags):

@@ -40,6 +40,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Image
 
+from abp_belief.cube import TRANSITION_RULES
 from abp_common import names, qos
 from abp_msgs.msg import AspectObservation, Belief
 
@@ -134,6 +135,9 @@ def parse_args(argv):
     parser.add_argument('--no-build', action='store_true',
                         help='do not run scripts/bootstrap.sh before each episode')
     parser.add_argument('--models', default='robot', help='as start_graph.sh --models')
+    parser.add_argument('--tables', choices=TRANSITION_RULES, default=None,
+                        help='as start_graph.sh --tables (default: paper in the rules world, '
+                        'else corrected)')
     parser.add_argument('--planner', default='cost', help='as start_graph.sh --planner')
     parser.add_argument('--seed', type=int, default=0, help='model-set seed')
     parser.add_argument('--faults', action='store_true')
@@ -224,6 +228,13 @@ def stop_graph(proc):
         proc.wait()
 
 
+def tables_of(args) -> str:
+    """The ATG tables the graph's belief and planner use (start_graph.sh's choice)."""
+    if os.path.isfile(args.models):
+        return 'file'
+    return args.tables or ('paper' if args.world == 'rules' else 'corrected')
+
+
 def run_episode(args, index, workdir, params_file, bag=None):
     result_file = workdir / f'episode-{index}.json'
     cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--world', args.world,
@@ -231,6 +242,8 @@ def run_episode(args, index, workdir, params_file, bag=None):
            '--seed', str(args.seed), '--object', str(index), '--planner', args.planner,
            '--speedup', str(args.speedup), '--result-json', str(result_file),
            '--log-dir', str(workdir / f'logs-{index}'), '--timeout', str(args.timeout)]
+    if args.tables:
+        cmd += ['--tables', args.tables]
     if params_file:
         cmd += ['--params', str(params_file)]
     if args.no_build:
@@ -290,7 +303,8 @@ def summarise(results, latencies, observation_latencies, args):
          f'{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} '
          f'({len(observation_latencies)} frames)'),
     ]
-    title = (f"{args.world} world, {args.models} models, planner {args.planner}, "
+    title = (f"{args.world} world, {args.models} models ({tables_of(args)} tables), "
+             f"planner {args.planner}, "
              f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]
@@ -344,7 +358,8 @@ def main(argv=None):
     print(table)
     if args.json:
         with open(args.json, 'w') as out:
-            json.dump({'args': vars(args), 'interrupted': interrupted, 'results': results,
+            json.dump({'args': vars(args), 'tables': tables_of(args),
+                       'interrupted': interrupted, 'results': results,
                        'latencies_ms': probe.latencies_ms,
                        'observation_latencies_ms': probe.observation_latencies_ms}, out,
                       indent=2)

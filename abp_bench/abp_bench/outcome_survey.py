@@ -78,6 +78,7 @@ from abp_belief.cube import (
     ORBIT_STEPS,
     STATE_ROTATIONS,
     STATES_PER_MODEL,
+    TRANSITION_RULES,
     apply_rotation,
 )
 from abp_description.frames import axis_angle_deg, rot_z_deg
@@ -283,15 +284,13 @@ def simulate(task):
 
 
 # -- the comparison (the only place the tables are read) ----------------------------------
-def table_distributions():
-    """(8, 7, 48, 48) p(next | action, mass, state) of abp_belief's default ATG tables."""
-    from abp_belief.modelset import build_outcome_tables
+def table_distributions(tables='corrected'):
+    """(8, 7, 48, 48) p(next | action, mass, state) of abp_belief's hand-written ATG table
+    `tables` (docs/MODEL.md: corrected or paper)."""
+    from abp_belief.atg_learning import hand_table
+    from abp_belief.modelset import TransitionParams
 
-    states, probs = build_outcome_tables()
-    dense = np.zeros((len(ACTIONS), NUM_MASS_VARIANTS, STATES_PER_MODEL, STATES_PER_MODEL))
-    a, m, s, k = np.indices(states.shape)
-    np.add.at(dense, (a, m, s, states.astype(np.int64)), probs)
-    return dense
+    return hand_table(TransitionParams(rules=tables))
 
 
 def rotation_name(q):
@@ -478,7 +477,7 @@ def _progress(total, enabled):
 # -- reports -----------------------------------------------------------------------------
 def compare(result):
     """Per cell: empirical vs table distribution, the largest difference and the flag."""
-    table = table_distributions()
+    table = table_distributions(result.settings.get('tables', 'corrected'))
     n = result.counts.sum(axis=3)
     emp = np.where(n[..., None] > 0, result.counts / np.maximum(n, 1)[..., None], np.nan)
     diff = np.where(n > 0, np.abs(np.nan_to_num(emp) - table).max(axis=3), 0.0)
@@ -619,7 +618,8 @@ def write_markdown(path, result, rows, goals, flagged):
         'top, `R(+x+y)-90` is a roll about a horizontal diagonal. A class is the set of '
         'start cells (mass variant, state) with the same physics (module doc of '
         '`abp_bench.outcome_survey`); "flagged" counts its cells whose empirical and table '
-        'distributions differ by more than 10 points in some next state.',
+        'distributions differ by more than 10 points in some next state. The table: '
+        f"MODEL.md's hand-written one, {s.get('tables', 'corrected')} rules.",
         '',
         f"Goal (uniform cells give MODEL.md's nominal outcome in >= 95 % of trials): "
         f'{goals["uniform_cells_at_goal"]}/{goals["uniform_cells"]} cells.',
@@ -716,7 +716,8 @@ def write_heatmap(path, emp, table, diff, flagged, n):
     plt.close(fig)
 
 
-def write_outputs(result, out_dir):
+def write_outputs(result, out_dir, tables='corrected'):
+    result.settings['tables'] = tables               # the hand-written table compared with
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     with open(out / 'survey.pkl', 'wb') as stream:   # to redo the reports: --report-only
@@ -765,6 +766,8 @@ def main(argv=None):
                         help='probability of a slipping grasp per manual trial (hands 1 cm out)')
     parser.add_argument('--p-missed-push', type=float, default=None,
                         help='probability of a missed push per manual trial (hands 10 cm out)')
+    parser.add_argument('--tables', choices=TRANSITION_RULES, default='corrected',
+                        help='the hand-written ATG table to compare with (docs/MODEL.md)')
     parser.add_argument('--no-symmetry-check', action='store_true')
     parser.add_argument('--no-progress', action='store_true')
     parser.add_argument('--report-only', action='store_true',
@@ -773,7 +776,7 @@ def main(argv=None):
     if args.report_only:
         with open(Path(args.out) / 'survey.pkl', 'rb') as stream:
             result = pickle.load(stream)
-        _, goals, flagged = write_outputs(result, args.out)
+        _, goals, flagged = write_outputs(result, args.out, args.tables)
         print(f'{int(flagged.sum())} flagged cells; wrote {args.out}/survey.{{json,md,png}}')
         return 0
     if args.trials < 1 or (args.orbit_trials is not None and args.orbit_trials < 1):
@@ -799,7 +802,7 @@ def main(argv=None):
     result = run_survey(classes, args.trials, args.orbit_trials, args.jobs, args.seed, rand,
                         symmetry_check=not args.no_symmetry_check,
                         progress=not args.no_progress)
-    rows, goals, flagged = write_outputs(result, args.out)
+    rows, goals, flagged = write_outputs(result, args.out, args.tables)
     print(f'{len(rows)} classes, {int(flagged.sum())} flagged cells, '
           f'uniform goal {goals["uniform_cells_at_goal"]}/{goals["uniform_cells"]}; '
           f'{result.wall_s / 60:.1f} min; wrote {args.out}/survey.{{json,md,png}}')

@@ -25,7 +25,7 @@ from multiprocessing import get_context
 import numpy as np
 from tqdm import tqdm
 
-from abp_belief.cube import ACTIONS
+from abp_belief.cube import ACTIONS, TRANSITION_RULES
 from abp_planner.planner import PLANNER_NAMES, make_planner
 from abp_planner.simulator import MAX_ACTIONS, STOP_POSTERIOR, run_trial, trial_rngs
 from abp_planner.stopping import (
@@ -50,14 +50,18 @@ PAPER = {
 MODEL_SET_CHOICES = ('30', '60', '120', '1470', 'robot')
 
 
-def build_model_set(label: str, seed: int):
+def build_model_set(label: str, seed: int, tables: str = 'paper'):
+    """The model set `label` with the hand-written table `tables` (the paper's by default:
+    the protocol and Table II are the paper's)."""
     from abp_belief import population
+    from abp_belief.modelset import TransitionParams
 
+    params = TransitionParams(rules=tables)
     if label == '1470':
-        return population.full_set()
+        return population.full_set(transition_params=params)
     if label == 'robot':
-        return population.robot_set(seed=seed)
-    return population.random_visual_subset(int(label), seed=seed)
+        return population.robot_set(seed=seed, transition_params=params)
+    return population.random_visual_subset(int(label), seed=seed, transition_params=params)
 
 
 def with_model_tables(model_set, path: str | None):
@@ -79,9 +83,11 @@ def _worker_trial(task):
     label, planner_name, trial, seed, options = task
     from abp_belief.filter import BeliefFilter
 
-    key = (label, seed, options.get('belief_models'), options.get('world_models'))
+    tables = options.get('tables', 'paper')
+    key = (label, seed, tables, options.get('belief_models'), options.get('world_models'))
     if key not in _WORKER:
-        ms = with_model_tables(build_model_set(label, seed), options.get('belief_models'))
+        ms = with_model_tables(build_model_set(label, seed, tables),
+                               options.get('belief_models'))
         # The world: the same models and observation model, its own transition tables.
         world = with_model_tables(ms, options.get('world_models'))
         _WORKER[key] = (ms, BeliefFilter(ms), {}, world)
@@ -381,13 +387,16 @@ def parse_args(argv):
     p.add_argument('--tie-tolerance', type=float, default=None,
                    help="expected gains closer than this (bits) are ties, resolved towards the "
                    "shorter action (default: the planner's, 1e-3)")
+    p.add_argument('--tables', choices=TRANSITION_RULES, default='paper',
+                   help="hand-written ATG table of the generated sets (docs/MODEL.md): paper "
+                   "(default: the paper's protocol) or corrected (the nodes' default)")
     p.add_argument('--world-models', metavar='FILE',
                    help="draw the true object's outcomes from this model file's transition "
                    'tables (e.g. learn_atg --alpha 0 from the MuJoCo survey); default: the '
                    "belief's own tables")
     p.add_argument('--belief-models', metavar='FILE',
                    help='transition tables of the belief and the planner (e.g. a learn_atg '
-                   'file); default: the hand-written ones')
+                   'file); default: the hand-written ones of --tables')
     p.add_argument('--refuse', nargs='+', default=[], choices=ACTIONS, metavar='ACTION',
                    help='actions the feasibility check refuses at every decision (as when '
                    'IK fails or a grasp keeps slipping), e.g. --refuse LIFT FLIP')
@@ -428,6 +437,7 @@ def main(argv=None) -> int:
         'fault_margin': args.fault_margin,
         'tie_tolerance': args.tie_tolerance,
         'planning_budget_s': args.planning_budget_s,
+        'tables': args.tables,
         'belief_models': args.belief_models,
         'world_models': args.world_models,
         'refuse': tuple(args.refuse),
@@ -464,7 +474,8 @@ def main(argv=None) -> int:
           f"{' with fault margin' if args.fault_margin else ''}, "
           f"planning budget {args.planning_budget_s} s"
           f"{'; refused ' + ' '.join(args.refuse) if args.refuse else ''}; tables: belief "
-          f"{args.belief_models or 'hand-written'}, world {args.world_models or 'same'})")
+          f"{args.belief_models or 'hand-written ' + args.tables}, world "
+          f"{args.world_models or 'same'})")
     by_family = family_table(results, args.models, args.planners, args.seed)
     if by_family:
         print('\nBy object family (mass twins share their faces):\n')

@@ -130,7 +130,13 @@ def test_graph_benchmark_summary_table():
     assert '| not identified (aborted with a reason) | 1 |' in table
     assert '| hung (no result within the timeout) | 1 |' in table
     assert '| mean actions | 4.00 |' in table
-    assert 'mujoco world, robot models, planner cost, without fault injection' in table
+    assert ('mujoco world, robot models (corrected tables), planner cost, without fault '
+            'injection') in table
+    # The rules world's tables are the paper's, unless --tables says otherwise.
+    rules = graph_benchmark.parse_args(['--world', 'rules'])
+    assert graph_benchmark.tables_of(rules) == 'paper'
+    assert graph_benchmark.tables_of(graph_benchmark.parse_args(
+        ['--world', 'rules', '--tables', 'corrected'])) == 'corrected'
 
 
 def test_transport_benchmark(capsys):

@@ -60,10 +60,12 @@ def test_the_simulation_side_never_imports_the_tables():
 
 @pytest.mark.timeout(120)   # ~15 s on an idle 2-core machine
 def test_tiny_survey_writes_json_markdown_and_heat_map(tmp_path):
-    # PUSH on a heavy-+y cube, even yaws: the classes 'mass +x_V' and 'mass +y_V'.
+    # PUSH on a heavy-+y cube, even yaws: the classes 'mass +x_V' and 'mass +y_V', against
+    # the paper's table (which pivots the side-heavy cube; the corrected one slides it).
     assert survey.main(['--trials', '1', '--actions', 'PUSH', '--masses', 'm+y',
                         '--parity', 'even', '--max-classes', '2', '--jobs', '2',
-                        '--no-symmetry-check', '--no-progress', '--out', str(tmp_path)]) == 0
+                        '--tables', 'paper', '--no-symmetry-check', '--no-progress',
+                        '--out', str(tmp_path)]) == 0
     doc = json.loads((tmp_path / 'survey.json').read_text())
     assert doc['settings']['trials'] == 1 and doc['versions']['mujoco']
     assert [c['label'] for c in doc['classes']] == ['mass +x_V, even yaw',
@@ -76,6 +78,12 @@ def test_tiny_survey_writes_json_markdown_and_heat_map(tmp_path):
     assert pivot['table']['Rz-45'] == pytest.approx(0.88)
     assert pivot['flagged_cells'] in (0, 4)
     assert '| PUSH | mass +y_V, even yaw | 4 |' in (tmp_path / 'survey.md').read_text()
+    assert 'hand-written one, paper rules' in (tmp_path / 'survey.md').read_text()
+    # The same trials against the corrected table, which slides it (nominal 98 %).
+    assert survey.main(['--report-only', '--out', str(tmp_path)]) == 0
+    slide = json.loads((tmp_path / 'survey.json').read_text())['classes'][1]
+    assert slide['table']['none'] == pytest.approx(0.98)
+    assert slide['flagged_cells'] == 4 - pivot['flagged_cells']
     assert (tmp_path / 'survey.png').stat().st_size > 10_000
 
 

@@ -8,14 +8,15 @@ import pytest
 
 from abp_belief import atg_learning, model_file, population
 from abp_belief.cube import ACTIONS
+from abp_belief.modelset import TransitionParams
 from abp_bench import planner_benchmark
 
 
 @pytest.fixture(scope='module')
 def files(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('tables')
-    robot = population.robot_set(seed=0)
-    hand = tmp / 'hand.npz'
+    robot = population.robot_set(seed=0, transition_params=TransitionParams(rules='paper'))
+    hand = tmp / 'hand.npz'                       # the benchmark's default (paper) tables
     model_file.save(robot, hand)
     # A world where LIFT never does anything and FLIP of a uniform cube rolls it 180 deg.
     lift, flip = ACTIONS.index('LIFT'), ACTIONS.index('FLIP')
@@ -42,6 +43,18 @@ def test_world_with_the_beliefs_own_tables_changes_nothing(files, tmp_path, caps
     keys = ('true_model', 'initial_state', 'actions', 'correct', 'final_true_posterior')
     assert [{k: t[k] for k in keys} for t in plain] == [{k: t[k] for k in keys} for t in same]
     assert f'world {hand}' in capsys.readouterr().out
+
+
+def test_tables_choose_the_hand_written_table(tmp_path, capsys):
+    corrected = tmp_path / 'corrected.npz'
+    model_file.save(population.robot_set(seed=0), corrected)
+    by_option = _run(tmp_path, '--tables', 'corrected')
+    assert 'belief hand-written corrected' in capsys.readouterr().out
+    by_file = _run(tmp_path, '--world-models', str(corrected), '--belief-models', str(corrected))
+    keys = ('true_model', 'initial_state', 'actions', 'correct', 'final_true_posterior')
+    assert [{k: t[k] for k in keys} for t in by_option] == \
+        [{k: t[k] for k in keys} for t in by_file]
+    assert [t['actions'] for t in by_option] != [t['actions'] for t in _run(tmp_path)]
 
 
 def test_world_tables_drive_the_outcomes(files, tmp_path):

@@ -3,10 +3,12 @@ is not installable from PyPI; scripts/start_graph.sh is the tested equivalent an
 starts the same nodes with the same parameters file).
 
     ros2 launch abp_bringup abp.launch.py sim:=true world:=mujoco models:=robot planner:=cost \
-        seed:=0 namespace:=robot1
+        seed:=0 namespace:=robot1 tables:=corrected
 
 `world` chooses the sim bridge's world: mujoco (MuJoCo physics and camera) or rules (the
-contact rules and the flat renderer; fast).
+contact rules and the flat renderer; fast). `tables` chooses the hand-written ATG table
+(docs/MODEL.md): corrected or paper; empty (the default) means paper in the rules world,
+whose physics it is, and corrected otherwise, as start_graph.sh --tables.
 
 The model-set parameters are set once for every node (`SetParameter`, the launch form
 of the `/**:` section in config/abp.yaml); `namespace` puts every node (and so every
@@ -33,6 +35,9 @@ def generate_launch_description():
     sim = LaunchConfiguration('sim')
     namespace = LaunchConfiguration('namespace')
     use_sim_time = PythonExpression(["'", sim, "' == 'true'"])
+    tables = PythonExpression([
+        "'", LaunchConfiguration('tables'), "' or ('paper' if '", sim, "' == 'true' and '",
+        LaunchConfiguration('world'), "' == 'rules' else 'corrected')"])
 
     def node(package, executable, extra=None, sim_time=True, managed=True, **kw):
         params = [config, {'use_sim_time': use_sim_time} if sim_time else {}, extra or {}]
@@ -58,11 +63,16 @@ def generate_launch_description():
         DeclareLaunchArgument('planner', default_value='cost',
                               description='random, abp, abp2, abp3 or cost'),
         DeclareLaunchArgument('seed', default_value='0', description='model-set seed'),
+        DeclareLaunchArgument('tables', default_value='',
+                              description='hand-written ATG table: corrected or paper '
+                              '(empty: paper in the rules world, else corrected)',
+                              choices=['', 'corrected', 'paper']),
         DeclareLaunchArgument('namespace', default_value='',
                               description='namespace of every node (empty = the root)'),
         # The model set, once for the whole graph (as `/**:` in a parameters file).
         SetParameter(name='model_set', value=LaunchConfiguration('models')),
         SetParameter(name='seed', value=LaunchConfiguration('seed')),
+        SetParameter(name='transition_rules', value=tables),
         # The sim bridge publishes /clock, so it runs on wall time.
         node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world')},
              sim_time=False, condition=IfCondition(sim)),

@@ -184,23 +184,27 @@ def test_twins_are_indistinguishable_by_orbits(robot):
         assert np.allclose(states, states[0], rtol=1e-9, atol=1e-300)
 
 
+def _twin_marginal_after(model_set, action, start, mass_face_dir):
+    """Object marginal over a twin family, from a known start state, after `action` and the
+    aspect of its first nominal outcome for the twin whose heavy face points along
+    `mass_face_dir` at `start`; and that twin's index."""
+    members = _twin_group(model_set)
+    twins = model_set.subset(members)
+    (heavy,) = [m for m in range(1, 7) if np.allclose(_mass_dir(m, start), mass_face_dir)]
+    flt = BeliefFilter(twins)
+    flt.belief[:] = 0.0
+    flt.belief[np.arange(7) * 48 + start] = 1.0 / 7             # same known start state
+    flt.predict(action)
+    (rotation, _), *_ = cube.nominal_outcomes(action, heavy, start,
+                                              model_set.transition_params.rules)
+    flt.correct(cube.aspect_of(twins.faces[0], cube.apply_rotation(rotation, start)))
+    return flt.object_marginal(), int(np.flatnonzero(twins.mass == heavy)[0])
+
+
 @pytest.mark.parametrize('action,mass_face_dir', [('PUSH', [0, 1, 0]), ('LIFT', [0, 0, 1]),
                                                    ('FLIP', [0, -1, 0])])
 def test_paper_manual_actions_separate_twins(robot_paper, action, mass_face_dir):
-    members = _twin_group(robot_paper)
-    twins = robot_paper.subset(members)
-    faces = twins.faces[0]
-    # Pick the twin whose heavy face points along mass_face_dir in the upright start state.
-    s0 = 8 * 4
-    (heavy,) = [m for m in range(1, 7) if np.allclose(_mass_dir(m, s0), mass_face_dir)]
-    true_model = int(np.flatnonzero(twins.mass == heavy)[0])
-    flt = BeliefFilter(twins)
-    flt.belief[:] = 0.0
-    flt.belief[np.arange(7) * 48 + s0] = 1.0 / 7                # same known start state
-    flt.predict(action)
-    nominal = cube.apply_rotation(cube.nominal_rotation(action, heavy, s0), s0)
-    flt.correct(cube.aspect_of(faces, nominal))
-    marginal = flt.object_marginal()
+    marginal, true_model = _twin_marginal_after(robot_paper, action, 8 * 4, mass_face_dir)
     assert marginal[true_model] > 0.8
     assert marginal[true_model] == marginal.max()
 
@@ -278,17 +282,7 @@ def test_corrected_flip_rolls_about_the_hand_axis(full7):
     ('LIFT', 32, [1, 0, 0]), ('FLIP', 32, [0, 0, 1]),
     ('LIFT', 33, [np.sqrt(0.5), np.sqrt(0.5), 0])])
 def test_corrected_manual_actions_separate_twins(robot, action, start, mass_face_dir):
-    members = _twin_group(robot)
-    twins = robot.subset(members)
-    (heavy,) = [m for m in range(1, 7) if np.allclose(_mass_dir(m, start), mass_face_dir)]
-    true_model = int(np.flatnonzero(twins.mass == heavy)[0])
-    flt = BeliefFilter(twins)
-    flt.belief[:] = 0.0
-    flt.belief[np.arange(7) * 48 + start] = 1.0 / 7             # same known start state
-    flt.predict(action)
-    (rotation, _), *_ = cube.nominal_outcomes(action, heavy, start)
-    flt.correct(cube.aspect_of(twins.faces[0], cube.apply_rotation(rotation, start)))
-    marginal = flt.object_marginal()
+    marginal, true_model = _twin_marginal_after(robot, action, start, mass_face_dir)
     assert marginal[true_model] == marginal.max()
     assert marginal[true_model] > 0.4
 

@@ -49,6 +49,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.model_file import fingerprint  # noqa: E402
+from abp_belief.modelset import TransitionParams  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
 from abp_common import names, qos  # noqa: E402
 from abp_common.health import DIAGNOSTICS  # noqa: E402
@@ -362,8 +363,9 @@ def start_graph(ros_processes, tmp_path, object_index):
     config = pathlib.Path(ament_index.get_package_share_directory('abp_bringup')) / \
         'config' / 'abp.yaml'
     model_params = tmp_path / 'model_set.yaml'
+    # The rules world's physics is the paper's table (as start_graph.sh --world rules).
     model_params.write_text(f'/**:\n  ros__parameters:\n    seed: {SEED}\n'
-                            '    model_set: robot\n')
+                            '    model_set: robot\n    transition_rules: paper\n')
     common = ['--ros-args', '--params-file', str(config), '--params-file', str(model_params),
               '-p', f'max_stamp_lag:={MAX_LAG_S}']
     sim_time = ['-p', 'use_sim_time:=true']
@@ -422,7 +424,7 @@ def log_lines_per_kind(text):
 @pytest.mark.parametrize('mass', ['u', 'm+z'])
 def test_the_graph_survives_a_sweep_of_malformed_inputs(tmp_path, ros_processes,
                                                         rclpy_context, spin, mass):
-    models = robot_set(seed=SEED)
+    models = robot_set(seed=SEED, transition_params=TransitionParams(rules='paper'))
     hidden = next(i for i, name in enumerate(models.names) if name.endswith('/' + mass))
     assert hidden != models.num_models - 1, 'the garbage beliefs must name another model'
     started = time.monotonic()

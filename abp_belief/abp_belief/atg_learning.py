@@ -47,6 +47,7 @@ seen, and their sum: how many trials back the row), stored in the model file's
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import os
@@ -352,7 +353,8 @@ def prior_mean(prior: str = 'table', epsilon: float = DEFAULT_EPSILON,
         raise LearningError(f"prior must be one of {', '.join(PRIORS)}, got {prior!r}")
     if not 0.0 <= epsilon <= 1.0:
         raise LearningError(f'epsilon must be in [0, 1], got {epsilon}')
-    table = hand_table(params)
+    # epsilon is the prior's share of unmodelled outcomes: not on top of the table's own.
+    table = hand_table(dataclasses.replace(params or TransitionParams(), p_unmodelled=0.0))
     near = np.broadcast_to(neighbourhood(neighbourhood_kind), (_NA, _NM, _NS, _NS)).copy()
     for a, action in enumerate(ACTIONS):
         if action in ORBIT_STEPS:

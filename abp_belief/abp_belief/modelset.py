@@ -22,7 +22,7 @@ from .observation import ObservationModel, ObservationParams
 __all__ = ['TransitionParams', 'ObservationParams', 'ModelSet', 'PairGaussians',
            'build_outcome_tables', 'MAX_NODES']
 
-MAX_OUTCOMES = 3            # K: nominal + two neighbours at most
+MAX_OUTCOMES = 3            # K before the unmodelled outcomes: nominal + two neighbours
 MAX_NODES = 4_000_000       # ~1 GB of transition matrices; larger sets need pruning first
 
 
@@ -33,6 +33,8 @@ class TransitionParams:
     p_fail_lift: float = 0.1
     p_fail_flip: float = 0.1
     p_push_neighbour: float = 0.02   # PUSH pivots the other way round (sliding: +-45 half each)
+    # Corrected rules only: a manual action ends in a neighbouring state that no rule names.
+    p_unmodelled: float = 0.05
     rules: str = 'corrected'         # nominal outcomes: cube.TRANSITION_RULES (MODEL.md)
 
     def __post_init__(self):
@@ -116,7 +118,30 @@ def build_outcome_tables(params: TransitionParams | None = None):
                 nxt, pr = _state_distribution((rot, prob, s) for rot, prob in outcomes)
                 states[a, m, s, :len(nxt)] = nxt
                 probs[a, m, s, :len(pr)] = pr
+    if p.rules == 'corrected' and p.p_unmodelled > 0.0:
+        return _with_unmodelled_outcomes(states, probs, p.p_unmodelled)
     return states, probs
+
+
+def _with_unmodelled_outcomes(states, probs, share: float):
+    """The tables with `share` of every manual-action row spread evenly over the start
+    state's neighbourhood (no change, +-45 deg yaw, the four quarter rolls about the
+    horizontal axes: `atg_learning.neighbourhood('near')`, the learner's too).
+
+    Why: the MuJoCo survey sees 5-15 % of outcomes no rule names (a cube turned while
+    handled, a roll over an edge); a table that makes them impossible stops confidently
+    wrong when one happens. ORBIT rows are unchanged (their slip is modelled)."""
+    # Lazy: atg_learning imports this module.
+    from .atg_learning import LearnedTables, dense_table, neighbourhood
+
+    dense = dense_table(states, probs)
+    near = neighbourhood('near').astype(np.float64)
+    near /= near.sum(axis=1, keepdims=True)
+    manual = [ACTIONS.index(name) for name in cube.MANUAL_ACTIONS]
+    dense[manual] = (1.0 - share) * dense[manual] + share * near
+    sparse_states, sparse_probs, _ = LearnedTables(dense, np.zeros_like(dense), {}) \
+        .outcome_tables()
+    return sparse_states, sparse_probs
 
 
 _DEFAULT_TABLES: dict = {}

@@ -1,8 +1,9 @@
 import numpy as np
 import pytest
 
-from abp_belief import cube, modelset
+from abp_belief import cube, modelset, population
 from abp_belief import filter as belief_filter
+from abp_belief.atg_learning import neighbourhood
 
 ACTIONS, FACE_NORMALS = cube.ACTIONS, cube.FACE_NORMALS
 BeliefFilter = belief_filter.BeliefFilter
@@ -212,7 +213,14 @@ def test_paper_manual_actions_separate_twins(robot_paper, action, mass_face_dir)
 # -- the corrected table (MODEL.md: the cells the MuJoCo survey showed wrong) -------------
 
 
-def test_corrected_push_slides_whatever_the_mass(full7):
+@pytest.fixture(scope='module')
+def full7_rules():
+    """The corrected rules alone, without their share of unmodelled outcomes."""
+    return population.full_set(7, transition_params=TransitionParams(p_unmodelled=0.0))
+
+
+def test_corrected_push_slides_whatever_the_mass(full7_rules):
+    full7 = full7_rules
     p = full7.transition_params
     for m in range(7):
         for s in range(0, 48, 2):
@@ -224,7 +232,8 @@ def test_corrected_push_slides_whatever_the_mass(full7):
             assert _outcomes(full7, 'PUSH', m, s) == {s: 1.0}
 
 
-def test_corrected_lift_holds_a_top_heavy_cube_and_rolls_a_diagonal_one_at_odd_yaw(full7):
+def test_corrected_lift_holds_a_top_heavy_cube_and_rolls_a_diagonal_one_at_odd_yaw(full7_rules):
+    full7 = full7_rules
     fail = full7.transition_params.p_fail_lift
     for m in range(1, 7):
         for s in _states_with_mass_at(m, [0, 0, 1]):
@@ -254,7 +263,8 @@ def test_corrected_lift_holds_a_top_heavy_cube_and_rolls_a_diagonal_one_at_odd_y
         assert _outcomes(full7, 'LIFT', 0, s) == {s: 1.0}
 
 
-def test_corrected_flip_rolls_about_the_hand_axis(full7):
+def test_corrected_flip_rolls_about_the_hand_axis(full7_rules):
+    full7 = full7_rules
     fail = full7.transition_params.p_fail_flip
     front_to_top = cube.rot_y(-90)
     for m in range(7):
@@ -300,3 +310,28 @@ def test_paper_rules_are_the_paper_nominal_rotation():
             for s in range(48):
                 ((q, w),) = cube.nominal_outcomes(a, m, s, rules='paper')
                 assert w == 1.0 and np.array_equal(q, cube.nominal_rotation(a, m, s))
+
+
+def test_corrected_table_spreads_its_unmodelled_share_over_the_neighbourhood(full7_rules):
+    spread = TransitionParams()
+    assert spread.p_unmodelled == pytest.approx(0.05)
+    with_spread = population.full_set(7, transition_params=spread)
+    near = neighbourhood('near')
+    for action in ACTIONS:
+        for m in range(7):
+            for s in range(48):
+                exact = _outcomes(full7_rules, action, m, s)
+                got = _outcomes(with_spread, action, m, s)
+                if action in cube.ORBIT_STEPS:               # the slip is modelled
+                    assert got == pytest.approx(exact)
+                    continue
+                share = spread.p_unmodelled / near[s].sum()
+                want = {x: (1 - spread.p_unmodelled) * p for x, p in exact.items()}
+                for x in np.flatnonzero(near[s]):
+                    want[int(x)] = want.get(int(x), 0.0) + share
+                assert got == pytest.approx(want)
+    # The paper's table has no such share.
+    paper = build_outcome_tables(TransitionParams(rules='paper'))
+    assert paper[0].shape[-1] == modelset.MAX_OUTCOMES
+    assert build_outcome_tables(TransitionParams(rules='paper', p_unmodelled=0.3))[1] == \
+        pytest.approx(paper[1])

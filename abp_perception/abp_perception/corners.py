@@ -26,10 +26,12 @@ only because their integer-pixel contour corners sample the bits badly.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
-__all__ = ['refine_quads', 'decode_quads', 'quad_areas']
+__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'code_table']
 
 # Edge-profile sampling: fractions of each edge, samples across it (wide first pass to
 # recover contour corners that are several pixels off, then a narrow pass).
@@ -194,8 +196,11 @@ def refine_quads(gray, quads, passes: int = 2):
 
 # -- bit decoding --------------------------------------------------------------------------
 
+@lru_cache(maxsize=8)
 def _grid_points(cells: int):
-    """Sample points in canonical marker coordinates (marker spans [0, cells]^2)."""
+    """Sample points in canonical marker coordinates (marker spans [0, cells]^2), in
+    homogeneous coordinates (P, 3): the cell samples, then the quiet-zone ring; the
+    number of cell samples and of samples per cell. Cached (read-only arrays)."""
     sub = np.array([-0.2, 0.0, 0.2])
     centres = np.stack(np.meshgrid(np.arange(cells) + 0.5, np.arange(cells) + 0.5,
                                    indexing='xy'), axis=-1).reshape(-1, 2)   # row-major (y, x)
@@ -204,7 +209,45 @@ def _grid_points(cells: int):
     ring = []
     for v in np.linspace(0.5, cells - 0.5, cells):
         ring += [[v, -0.4], [v, cells + 0.4], [-0.4, v], [cells + 0.4, v]]
-    return samples, np.array(ring), offsets.shape[0]
+    pts = np.concatenate([samples, np.array(ring)])
+    pts = np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1)
+    pts.flags.writeable = False
+    return pts, samples.shape[0], offsets.shape[0]
+
+
+# Packed bits -> (id, rotation) of every marker of a dictionary in its four rotations,
+# per dictionary (marker size and codes).
+_CODE_TABLES = {}
+
+
+def _pack_bits(bits) -> np.ndarray:
+    """(..., n, n) 0/1 bits as one integer each (row-major, first bit lowest)."""
+    flat = np.asarray(bits).reshape(*np.shape(bits)[:-2], -1).astype(np.int64)
+    return flat @ (np.int64(1) << np.arange(flat.shape[-1], dtype=np.int64))
+
+
+def code_table(dictionary) -> dict:
+    """{packed bits: (id, rotation)} for every marker of `dictionary` in each of its four
+    rotations, with the (id, rotation) ``Dictionary.identify`` gives that bit pattern
+    without error correction; so looking a pattern up answers as ``identify(bits, 0.0)``
+    does (not found: not in the table), without its cost (~80 us per pattern it does not
+    find, the common case for rejected candidates). Cached per dictionary."""
+    codes = np.asarray(dictionary.bytesList)
+    key = (int(dictionary.markerSize), codes.tobytes())
+    table = _CODE_TABLES.get(key)
+    if table is None:
+        n = int(dictionary.markerSize)
+        table = {}
+        for marker in range(codes.shape[0]):
+            image = dictionary.generateImageMarker(marker, n + 2)      # 1 px per cell
+            bits = (image[1:-1, 1:-1] > 127).astype(np.uint8)
+            for turns in range(4):
+                pattern = np.ascontiguousarray(np.rot90(bits, turns))
+                found, idx, rotation = dictionary.identify(pattern, 0.0)
+                if found:
+                    table.setdefault(int(_pack_bits(pattern)), (int(idx), int(rotation)))
+        _CODE_TABLES[key] = table
+    return table
 
 
 def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_errors: int = 2,
@@ -225,19 +268,16 @@ def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_error
         return []
     size = int(dictionary.markerSize)
     cells = size + 2 * int(border_bits)
-    samples, ring, per_cell = _grid_points(cells)
+    pts, n_s, per_cell = _grid_points(cells)
     canonical = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float32)
     homog = np.array([cv2.getPerspectiveTransform(canonical, quad.astype(np.float32))
                       for quad in q])
-    pts = np.concatenate([samples, ring])
-    ph = np.concatenate([pts, np.ones((pts.shape[0], 1))], axis=1)
-    proj = np.einsum('qij,pj->qpi', homog, ph)
+    proj = pts @ homog.transpose(0, 2, 1)                                   # (Q, P, 3)
     with np.errstate(divide='ignore', invalid='ignore'):
         xy = (proj[..., :2] / proj[..., 2:3]).astype(np.float32)
     xy = np.nan_to_num(xy, nan=-1e4, posinf=-1e4, neginf=-1e4)
     vals = cv2.remap(gray, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
-    n_s = samples.shape[0]
     cell_vals = vals[:, :n_s].reshape(q.shape[0], cells * cells, per_cell).mean(axis=2)
     cell_vals = cell_vals.reshape(q.shape[0], cells, cells)
     ring_vals = vals[:, n_s:]
@@ -251,10 +291,7 @@ def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_error
     ok = (white - black >= min_contrast) \
         & ((cell_vals[:, border] > thr[:, None]).sum(axis=1) <= max_border_errors) \
         & ((ring_vals < thr[:, None]).sum(axis=1) <= ring_vals.shape[1] // 4)
-    bits = (cell_vals[:, b:cells - b, b:cells - b] > thr[:, None, None]).astype(np.uint8)
-    out = [None] * q.shape[0]
-    for k in np.flatnonzero(ok):
-        found, idx, rotation = dictionary.identify(bits[k], 0.0)
-        if found:
-            out[k] = (int(idx), int(rotation))
-    return out
+    bits = cell_vals[:, b:cells - b, b:cells - b] > thr[:, None, None]
+    table = code_table(dictionary)
+    packed = _pack_bits(bits)
+    return [table.get(int(packed[k])) if ok[k] else None for k in range(q.shape[0])]

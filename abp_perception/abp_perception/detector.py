@@ -782,7 +782,7 @@ class TagDetector:
     def _candidates(self, rejected, accepted, limit=MAX_CANDIDATES):
         """Rejected contours worth a second look: large enough, not inside an accepted
         marker (its inner contours), at most `limit`, largest first."""
-        cand = np.array([c.reshape(4, 2) for c in rejected], dtype=np.float64)
+        cand = np.concatenate(rejected, axis=None).astype(np.float64).reshape(-1, 4, 2)
         area = np.abs(quad_areas(cand))
         keep = area >= self.min_side_px ** 2
         if accepted.shape[0] and keep.any():

@@ -214,7 +214,7 @@ class _Problem:
         f = np.array([self.K[0, 0], self.K[1, 1]])
         c = np.array([self.K[0, 2], self.K[1, 2]])
         for it in range(iterations + 1):
-            rx = np.einsum('mij,mkj->mki', rot, pts)                  # R X
+            rx = pts @ rot.transpose(0, 2, 1)                          # R X, (m, N, 3)
             pc = rx + t[:, None, :]
             z = pc[..., 2:3]
             resid = f * pc[..., :2] / z + c - target                  # (m, N, 2)
@@ -227,8 +227,10 @@ class _Problem:
             # d pc / d theta = -[R X]x, so a row g of d proj / d pc gives (R X) x g.
             jac = np.concatenate([dproj, _cross(rx[:, :, None, :], dproj)], axis=3)
             jac = jac.reshape(m, -1, 6)
-            hess = np.einsum('mki,mkj->mij', jac, jac)
-            grad = np.einsum('mki,mk->mi', jac, resid.reshape(m, -1))
+            # (matmul, not einsum: these small products are most of a GN step's cost)
+            jac_t = jac.transpose(0, 2, 1)
+            hess = jac_t @ jac
+            grad = (jac_t @ resid.reshape(m, -1, 1))[..., 0]
             step = -np.linalg.solve(hess + 1e-9 * np.eye(6), grad[..., None])[..., 0]
             t += step[:, :3]
             rot = _exp_so3(step[:, 3:]) @ rot

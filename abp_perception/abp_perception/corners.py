@@ -228,10 +228,12 @@ def _pack_bits(bits) -> np.ndarray:
 
 def code_table(dictionary) -> dict:
     """{packed bits: (id, rotation)} for every marker of `dictionary` in each of its four
-    rotations, with the (id, rotation) ``Dictionary.identify`` gives that bit pattern
-    without error correction; so looking a pattern up answers as ``identify(bits, 0.0)``
-    does (not found: not in the table), without its cost (~80 us per pattern it does not
-    find, the common case for rejected candidates). Cached per dictionary."""
+    rotations, so that looking a bit pattern up answers as ``identify(bits, 0.0)`` (no
+    error correction; not found: not in the table) without identify's cost (~80 us for a
+    pattern it does not find, the common case for rejected candidates). Rotation k is the
+    marker's bits turned by ``np.rot90`` k times, in identify's search order (markers,
+    then rotations, first match kept); test_corners checks it against identify. Cached
+    per dictionary."""
     codes = np.asarray(dictionary.bytesList)
     key = (int(dictionary.markerSize), codes.tobytes())
     table = _CODE_TABLES.get(key)
@@ -240,12 +242,9 @@ def code_table(dictionary) -> dict:
         table = {}
         for marker in range(codes.shape[0]):
             image = dictionary.generateImageMarker(marker, n + 2)      # 1 px per cell
-            bits = (image[1:-1, 1:-1] > 127).astype(np.uint8)
+            bits = image[1:-1, 1:-1] > 127
             for turns in range(4):
-                pattern = np.ascontiguousarray(np.rot90(bits, turns))
-                found, idx, rotation = dictionary.identify(pattern, 0.0)
-                if found:
-                    table.setdefault(int(_pack_bits(pattern)), (int(idx), int(rotation)))
+                table.setdefault(int(_pack_bits(np.rot90(bits, turns))), (marker, turns))
         _CODE_TABLES[key] = table
     return table
 

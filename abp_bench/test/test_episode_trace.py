@@ -8,6 +8,7 @@ import pytest
 
 from abp_belief import atg_from_bags, population
 from abp_belief.cube import ACTIONS
+from abp_belief.modelset import TransitionParams
 from abp_bench import episode_trace
 
 pytest.importorskip('rosbags')
@@ -19,7 +20,8 @@ if not all((BAGS / b / 'metadata.yaml').exists() for b in LABELS):
 
 @pytest.fixture(scope='module')
 def robot():
-    return population.robot_set(seed=1)
+    # The bags were recorded with the paper's table, the rules world's (bags/README.md).
+    return population.robot_set(seed=1, transition_params=TransitionParams(rules='paper'))
 
 
 @pytest.fixture(scope='module')
@@ -83,7 +85,8 @@ def test_cli_writes_the_rows_and_reports_a_missing_bag(tmp_path, capsys):
     labels = tmp_path / 'labels.yaml'
     labels.write_text(''.join(f'{BAGS / b}: {name}\n' for b, name in LABELS.items()))
     out = tmp_path / 'rows.json'
-    assert episode_trace.main(['--bags', str(labels), '--seed', '1', '--json', str(out)]) == 0
+    assert episode_trace.main(['--bags', str(labels), '--seed', '1', '--tables', 'paper',
+                               '--json', str(out)]) == 0
     assert '| FLIP | m+y |' in capsys.readouterr().out
     assert len(episode_trace.json.loads(out.read_text())) == 8
     labels.write_text(f'{tmp_path / "nowhere"}: c0-4-1-2-3-6/u\n')

@@ -87,6 +87,8 @@ def indistinguishable_models(model_set, model: int, state: int) -> np.ndarray:
     its bottom tag is never seen. Any other model with the same behaviour (heavy
     face down) that shows the same aspects at all 8 yaws is a perfect twin; in
     the full 1470 set that is the cube with the other unused tag on the heavy face.
+    That is the paper's table (the planner benchmark's default); the corrected table's
+    share of unmodelled outcomes can roll such a cube, so under it no model has a twin.
     """
     mass = np.asarray(model_set.mass, dtype=np.intp)
     up = state // 8

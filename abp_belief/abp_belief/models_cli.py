@@ -4,7 +4,7 @@ Examples:
   models --set full --tags 7                 # 1470 models, readable summary
   models --set random --size 60 --seed 2 --out m60.npz
   models --load m60.npz --json
-  models --set robot --transition-rules paper --out robot_paper.npz
+  models --set robot --tables paper --out robot_paper.npz
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help='number of visual cubes for --set random (default 30)')
     parser.add_argument('--seed', type=int, default=0, metavar='S',
                         help='random seed for --set random/robot (default 0)')
-    parser.add_argument('--transition-rules', choices=TRANSITION_RULES, default='corrected',
+    parser.add_argument('--tables', choices=TRANSITION_RULES, default='corrected',
                         help="hand-written ATG table (docs/MODEL.md): corrected (the nodes' "
                              "default) or paper (the paper's, as the planner benchmark uses)")
     parser.add_argument('--out', metavar='FILE', help='save the model set to FILE (.npz)')
@@ -102,7 +102,7 @@ def main(argv=None) -> int:
     if args.size is not None and args.which != 'random':
         return _usage_error(parser, '--size only applies to --set random')
     which = args.which or 'full'
-    params = TransitionParams(rules=args.transition_rules)
+    params = TransitionParams(rules=args.tables)
     try:
         if args.load:
             model_set = model_file.load(args.load)

@@ -1,8 +1,10 @@
 import json
 
+import numpy as np
 import pytest
 
-from abp_belief import models_cli
+from abp_belief import model_file, models_cli
+from abp_belief.modelset import TransitionParams, build_outcome_tables
 
 
 def _run(capsys, *argv):
@@ -45,6 +47,18 @@ def test_readable_summary_and_save_load(capsys, tmp_path):
     assert code == 0 and json.loads(out)['models'] == 210
 
 
+def test_tables_choose_the_saved_hand_written_table(capsys, tmp_path):
+    for tables in ('paper', 'corrected'):
+        path = tmp_path / f'{tables}.npz'
+        code, _, err = _run(capsys, '--set', 'robot', '--tables', tables, '--out', str(path))
+        assert code == 0, err
+        saved = model_file.load(path)
+        states, probs = build_outcome_tables(TransitionParams(rules=tables))
+        assert saved.transition_params.rules == tables
+        assert np.array_equal(saved.outcome_states, states)
+        assert np.array_equal(saved.outcome_probs, probs)
+
+
 @pytest.mark.parametrize('argv,fragment', [
     (['--tags', '5'], '6..50'),
     (['--tags', 'many'], 'invalid int value'),
@@ -54,6 +68,7 @@ def test_readable_summary_and_save_load(capsys, tmp_path):
     (['--load', '/nonexistent/file.npz'], 'no such file'),
     (['--load', 'x.npz', '--set', 'full'], 'mutually exclusive'),
     (['--set', 'full', '--tags', '50'], 'too many'),
+    (['--tables', 'survey'], 'invalid choice'),
 ])
 def test_bad_arguments_exit_2_without_traceback(capsys, argv, fragment):
     code, out, err = _run(capsys, *argv)

@@ -95,18 +95,10 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _population(args):
-    if args.population:
-        return model_file.load(args.population)
-    params = TransitionParams(rules=args.tables)
-    if args.which == 'full':
-        return population.full_set(args.tags, transition_params=params)
-    if args.which == 'visual':
-        return population.visual_set(args.tags, transition_params=params)
-    if args.which == 'random':
-        return population.random_visual_subset(args.size, n_tags=args.tags, seed=args.seed,
-                                               transition_params=params)
-    return population.robot_set(seed=args.seed, n_tags=args.tags, transition_params=params)
+def _population(args, params: TransitionParams):
+    return population.model_set_from_config(
+        args.which, args.size, args.tags, args.seed, model_file=args.population or '',
+        transition_params=params)
 
 
 def _fault_rates(args) -> dict:
@@ -128,8 +120,9 @@ def main(argv=None) -> int:
         return 2
     t0 = time.perf_counter()
     truth = None
+    params = TransitionParams(rules=args.tables)
     try:
-        base = _population(args) if args.bags else None    # objects are looked up in it
+        base = _population(args, params) if args.bags else None    # objects are looked up in it
         if args.bags:
             if not 0.0 <= args.broad <= 1.0 or not args.views_per_segment > 0:
                 raise ValueError('--broad must be in [0, 1] and --views-per-segment > 0')
@@ -144,13 +137,13 @@ def main(argv=None) -> int:
                                      neighbourhood_kind=args.neighbourhood,
                                      pool=not args.no_pool,
                                      fault_rates=_fault_rates(args),
-                                     params=TransitionParams(rules=args.tables))
+                                     params=params)
         t_learn = time.perf_counter() - t0
-        models = atg_learning.with_tables(base or _population(args), learned)
+        models = atg_learning.with_tables(base or _population(args, params), learned)
     except (ValueError, model_file.ModelFileError) as exc:
         print(f'{parser.prog}: error: {exc}', file=sys.stderr)
         return 2
-    hand = atg_learning.hand_table(TransitionParams(rules=args.tables))
+    hand = atg_learning.hand_table(params)
     tv = atg_learning.total_variation(learned.probs, hand)
     try:
         if args.out:

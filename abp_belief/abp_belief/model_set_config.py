@@ -40,11 +40,11 @@ TRANSITION_RULES_SPEC = ParamSpec(
     'showed wrong rewritten from the physics) or paper (as the paper wrote it; the rules '
     "world's physics). A model_file carries its own tables.", read_only=True,
     choices=TRANSITION_RULES)
-_DEFAULTS = {f.name: f.default for f in fields(ObservationParams) + fields(TransitionParams)}
 NOISE_SPECS = tuple(
-    probability(name, _DEFAULTS[name], f'Model noise: {name.replace("_", " ")} (see '
+    probability(f.name, f.default, f'Model noise: {f.name.replace("_", " ")} (see '
                 'docs/MODEL.md).', upper=0.5, read_only=True)
-    for name in tuple(f.name for f in fields(ObservationParams)) + TransitionParams.noise_names())
+    for f in fields(ObservationParams) + tuple(
+        f for f in fields(TransitionParams) if f.name in TransitionParams.noise_names()))
 MODEL_SET_SPECS = POPULATION_SPECS + (TRANSITION_RULES_SPEC,) + NOISE_SPECS
 # Parameters that define the model set: changing them needs a restart.
 MODEL_SET_PARAMETERS = tuple(p.name for p in MODEL_SET_SPECS)

@@ -102,26 +102,14 @@ def main(argv=None) -> int:
     if args.size is not None and args.which != 'random':
         return _usage_error(parser, '--size only applies to --set random')
     which = args.which or 'full'
-    params = TransitionParams(rules=args.tables)
+    size = 30 if args.size is None else args.size
+    description = f'loaded from {args.load}' if args.load else {
+        'full': 'full', 'visual': 'visual', 'random': f'random (size {size}, seed {args.seed})',
+        'robot': f'robot (seed {args.seed})'}[which]
     try:
-        if args.load:
-            model_set = model_file.load(args.load)
-            description = f'loaded from {args.load}'
-        elif which == 'full':
-            model_set = population.full_set(args.tags, transition_params=params)
-            description = 'full'
-        elif which == 'visual':
-            model_set = population.visual_set(args.tags, transition_params=params)
-            description = 'visual'
-        elif which == 'random':
-            size = 30 if args.size is None else args.size
-            model_set = population.random_visual_subset(size, n_tags=args.tags, seed=args.seed,
-                                                         transition_params=params)
-            description = f'random (size {size}, seed {args.seed})'
-        else:
-            model_set = population.robot_set(seed=args.seed, n_tags=args.tags,
-                                             transition_params=params)
-            description = f'robot (seed {args.seed})'
+        model_set = population.model_set_from_config(
+            which, size, args.tags, args.seed, model_file=args.load or '',
+            transition_params=TransitionParams(rules=args.tables))
     except (ValueError, model_file.ModelFileError) as exc:
         return _usage_error(parser, str(exc))
 

@@ -7,7 +7,7 @@ matrices are built from them with array operations.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, fields
 from typing import NamedTuple
 
 import numpy as np
@@ -39,9 +39,8 @@ class TransitionParams:
 
     def __post_init__(self):
         cube.check_transition_rules(self.rules)
-        for name, value in asdict(self).items():
-            if name == 'rules':
-                continue
+        for name in self.noise_names():
+            value = getattr(self, name)
             if not (isinstance(value, (int, float)) and 0.0 <= float(value) < 1.0):
                 raise ValueError(f'TransitionParams.{name} must be in [0, 1), got {value!r}')
         if self.p_fail_push + self.p_push_neighbour >= 1.0:

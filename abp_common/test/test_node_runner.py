@@ -8,7 +8,7 @@ pytest.importorskip('rclpy')
 
 from std_msgs.msg import String  # noqa: E402
 
-# The listener fails rclpy's first take on /flaky (as rclpy's take_message does now and
+# The listener fails rclpy's first take on /take_fails_once (as rclpy's take_message does now and
 # then under load), then stops after two messages (`stop`) or raises in its callback (`bug`).
 LISTENER = """
 import sys
@@ -25,7 +25,7 @@ failed = []
 
 
 def take_failing_once(self, sub):
-    if sub.topic_name == '/flaky' and not failed:
+    if sub.topic_name == '/take_fails_once' and not failed:
         failed.append(True)
         raise RuntimeError('Unable to convert call argument (injected)')
     return original_take(self, sub)
@@ -38,7 +38,7 @@ class Listener(Node):
     def __init__(self):
         super().__init__('listener')
         self.received = 0
-        self.create_subscription(String, '/flaky', self.on_message, 10)
+        self.create_subscription(String, '/take_fails_once', self.on_message, 10)
 
     def on_message(self, msg):
         self.received += 1
@@ -60,12 +60,12 @@ def test_a_failed_take_is_dropped_and_a_callback_error_is_not(
     script.write_text(LISTENER)
     proc = ros_processes.start_python(script, ending)
     node, executor = tester
-    publisher = node.create_publisher(String, '/flaky', 10)
+    publisher = node.create_publisher(String, '/take_fails_once', 10)
     # A steady stream until the listener ends: the first take fails, later ones arrive.
     node.create_timer(0.05, lambda: publisher.publish(String(data='hello')))
     assert spin(executor, lambda: proc.poll() is not None, 60), 'listener did not end'
     out = ros_processes.transcript(proc)
-    assert 'dropped a message on /flaky that rclpy could not take' in out, out
+    assert 'dropped a message on /take_fails_once that rclpy could not take' in out, out
     assert 'got message 2' in out, out
     if ending == 'stop':
         assert proc.returncode == 0, out

@@ -106,6 +106,10 @@ def _worker_trial(task):
     # depend on how trials are spread over workers.
     planner = make_planner(planner_name, ms, seed=seed * 1_000_003 + trial, **options)
     refused = frozenset(options.get('refuse') or ())
+    family = options.get('family')
+    true_models = None
+    if family:
+        true_models = np.flatnonzero(np.array(object_families(ms)) == family)
     result = run_trial(
         world,  # outcomes and observations of the true object; planner and filter use ms
         planner,
@@ -114,6 +118,7 @@ def _worker_trial(task):
         belief_filter=bf,
         stopping=stopping,
         feasible=(lambda action: action not in refused) if refused else None,
+        true_models=true_models,
     )
     return label, planner_name, trial, result.as_dict()
 
@@ -195,6 +200,9 @@ def markdown_table(summaries: dict, labels, planners) -> str:
     return '\n'.join(lines)
 
 
+OBJECT_FAMILIES = ('visual only', 'twin family, uniform', 'twin family, eccentric')
+
+
 def object_families(model_set) -> list[str]:
     """Per model: 'visual only' (no other model has its faces), or, in a family of mass
     twins (same faces), 'twin family, uniform' or 'twin family, eccentric'. A uniform
@@ -204,8 +212,8 @@ def object_families(model_set) -> list[str]:
     _, family, size = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
     twins = size[family.reshape(-1)] > 1
     uniform = np.asarray(model_set.mass) == 0
-    return np.where(~twins, 'visual only', np.where(uniform, 'twin family, uniform',
-                                                     'twin family, eccentric')).tolist()
+    visual, twin_uniform, twin_eccentric = OBJECT_FAMILIES
+    return np.where(~twins, visual, np.where(uniform, twin_uniform, twin_eccentric)).tolist()
 
 
 def family_table(results: dict, labels, planners, seed: int) -> str | None:
@@ -219,7 +227,7 @@ def family_table(results: dict, labels, planners, seed: int) -> str | None:
             continue
         for name in planners:
             trials = results.get((label, name), [])
-            for family in ('visual only', 'twin family, uniform', 'twin family, eccentric'):
+            for family in OBJECT_FAMILIES:
                 sel = [t for t in trials if families[t['true_model']] == family]
                 if sel:
                     accuracy = 100.0 * sum(bool(t['correct']) for t in sel) / len(sel)
@@ -400,6 +408,10 @@ def parse_args(argv):
     p.add_argument('--refuse', nargs='+', default=[], choices=ACTIONS, metavar='ACTION',
                    help='actions the feasibility check refuses at every decision (as when '
                    'IK fails or a grasp keeps slipping), e.g. --refuse LIFT FLIP')
+    p.add_argument('--family', choices=OBJECT_FAMILIES,
+                   help='draw the true object only from this object family (the "By object '
+                   'family" table), e.g. "twin family, uniform" to measure the uniform cubes '
+                   'that have mass twins with many trials; the set must have that family')
     p.add_argument('--jobs', type=int, default=1, help='worker processes')
     p.add_argument('--json', help='write summaries and every trial here')
     p.add_argument('--plot', help='write the Fig. 3-style belief plot (PNG) here')
@@ -416,6 +428,10 @@ def parse_args(argv):
         p.error('--stop-curve needs --stop fixed (trajectories of all --max-actions actions)')
     if args.planning_budget_s is not None and not args.planning_budget_s > 0:
         p.error('--planning-budget-s must be > 0')
+    if args.family:
+        for label in args.models:
+            if args.family not in object_families(build_model_set(label, args.seed, args.tables)):
+                p.error(f'--family {args.family!r}: model set {label} has no such object')
     for path in (args.world_models, args.belief_models):
         if path:
             from abp_belief import model_file
@@ -441,6 +457,7 @@ def main(argv=None) -> int:
         'belief_models': args.belief_models,
         'world_models': args.world_models,
         'refuse': tuple(args.refuse),
+        'family': args.family,
     }
     tasks = [
         (label, name, trial, args.seed, options)

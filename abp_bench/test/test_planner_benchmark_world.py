@@ -115,3 +115,18 @@ def test_results_split_by_object_family_on_the_robot_set(tmp_path, capsys):
     uniform_only = population.random_visual_subset(30, seed=0)
     assert set(planner_benchmark.object_families(uniform_only)) == {'visual only'}
     assert planner_benchmark.family_table({('30', 'abp'): trials}, ['30'], ['abp'], 0) is None
+
+
+def test_family_draws_the_true_object_from_that_family_only(tmp_path):
+    families = planner_benchmark.object_families(population.robot_set(seed=0))
+    trials = _run(tmp_path, '--family', 'twin family, uniform')
+    assert {families[t['true_model']] for t in trials} == {'twin family, uniform'}
+    # Both uniform cubes with twins are drawn, not one fixed model.
+    assert len({t['true_model'] for t in _run(tmp_path, '--trials', '12', '--family',
+                                                 'twin family, uniform')}) == 2
+
+
+def test_family_the_set_does_not_have_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit):
+        planner_benchmark.parse_args(['--models', '30', '--family', 'twin family, uniform'])
+    assert 'model set 30 has no such object' in capsys.readouterr().err

@@ -128,10 +128,12 @@ def run_trial(
     feasible=None,
     early_stop: bool = True,
     stopping: StoppingRule | None = None,
+    true_models=None,
 ) -> TrialResult:
     """One trial under ``stopping`` (default: the old 0.95 rule, or the
     ``"fixed"`` 30-action protocol when ``early_stop=False``); the rule's own
-    ``max_actions`` caps the trial."""
+    ``max_actions`` caps the trial. The true object is drawn uniformly from the whole set,
+    or from ``true_models`` (model indices) when given."""
     durations = NOMINAL_DURATION_S if durations is None else durations
     if stopping is None:
         stopping = StoppingRule(kind='posterior' if early_stop else 'fixed',
@@ -141,7 +143,10 @@ def run_trial(
     fixed = stopping.kind == 'fixed'
     bf = belief_filter if belief_filter is not None else BeliefFilter(model_set)
     bf.reset()
-    true_model = int(truth_rng.integers(model_set.num_models))
+    if true_models is None:
+        true_model = int(truth_rng.integers(model_set.num_models))
+    else:
+        true_model = int(true_models[truth_rng.integers(len(true_models))])
     state = initial_state = int(truth_rng.integers(STATES_PER_MODEL))
     trace, tops, top_true, answers = [], [], [], []
 

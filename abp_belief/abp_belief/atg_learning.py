@@ -186,6 +186,19 @@ class Experience:
     def __len__(self) -> int:
         return int(self.action.size)
 
+    @classmethod
+    def concatenate(cls, parts: list[Experience]) -> Experience:
+        """One experience of all `parts`' transitions (e.g. two surveys of the same world
+        with different seeds); `source` lists the parts' sources."""
+        if not parts:
+            raise LearningError('no experience to concatenate')
+        if len(parts) == 1:
+            return parts[0]
+        return cls(*(np.concatenate([getattr(e, name) for e in parts])
+                     for name in ('action', 'mass', 'state', 'next_state', 'weight')),
+                   source=dict(kind='concatenated', parts=[e.source for e in parts],
+                               transitions=sum(len(e) for e in parts)))
+
 
 def experience_from_survey(survey, trials_per_class: int | None = None,
                            subsample_seed: int | None = None) -> Experience:

@@ -9,6 +9,7 @@ Examples:
   learn_atg --survey survey.json --alpha 0 --out survey_table.npz     # empirical (a world)
   learn_atg --survey survey.json --contact-fault-rate 0.1 --out learned_faults.npz
   learn_atg --survey survey.json --trials-per-class 5 --out learned_n5.npz
+  learn_atg --survey survey_seed0.json survey_seed1.json --out learned.npz   # pooled
   learn_atg --bags labels.yaml --seed 1 --out learned_bags.npz    # recorded episodes
 
 A labels file (--bags) names the object each bag holds (YAML ``bag: object`` or a list of
@@ -40,8 +41,10 @@ def build_parser() -> argparse.ArgumentParser:
         description='Learn p(next state | action, mass variant, state) from experience with a '
         'Dirichlet prior and write a versioned, checksummed model-set file.')
     source = p.add_mutually_exclusive_group(required=True)
-    source.add_argument('--survey', metavar='JSON',
-                        help='outcome_survey JSON (bench_out/survey/survey.json)')
+    source.add_argument('--survey', metavar='JSON', nargs='+',
+                        help='outcome_survey JSON (bench_out/survey/survey.json); several '
+                        'surveys of the same world (e.g. run with different --seed) pool '
+                        'their trials')
     source.add_argument('--bags', metavar='LABELS',
                         help='labels file of recorded episodes: bag -> object name (YAML or '
                         'CSV)')
@@ -118,6 +121,10 @@ def main(argv=None) -> int:
         print(f'{parser.prog}: error: --trials-per-class/--subsample-seed apply to --survey',
               file=sys.stderr)
         return 2
+    if args.survey and len(args.survey) > 1 and args.trials_per_class is not None:
+        print(f'{parser.prog}: error: --trials-per-class needs a single --survey (which '
+              "survey's first N trials would it keep?)", file=sys.stderr)
+        return 2
     t0 = time.perf_counter()
     truth = None
     params = TransitionParams(rules=args.tables)
@@ -130,8 +137,10 @@ def main(argv=None) -> int:
                 args.bags, base, broad=args.broad, views_per_segment=args.views_per_segment)
             truth = atg_from_bags.truth_agreement(inferences)
         else:
-            experience = atg_learning.experience_from_survey(
-                args.survey, args.trials_per_class, args.subsample_seed)
+            experience = atg_learning.Experience.concatenate([
+                atg_learning.experience_from_survey(path, args.trials_per_class,
+                                                    args.subsample_seed)
+                for path in args.survey])
         learned = atg_learning.learn(experience, alpha=args.alpha, prior=args.prior,
                                      epsilon=args.epsilon,
                                      neighbourhood_kind=args.neighbourhood,

@@ -250,6 +250,29 @@ def test_learn_atg_cli(tmp_path, capsys):
     assert 'no such file' in capsys.readouterr().err
 
 
+def test_several_surveys_pool_their_trials(tmp_path, capsys):
+    first, second = tmp_path / 'seed0.json', tmp_path / 'seed1.json'
+    first.write_text(json.dumps(_survey(per_class=3)))
+    second.write_text(json.dumps(_survey(per_class=2)))
+    out = tmp_path / 'pooled.npz'
+    assert learn_atg(['--survey', str(first), str(second), '--out', str(out), '--json']) == 0
+    assert json.loads(capsys.readouterr().out)['transitions'] == 14 * 5
+    learned = population.model_set_from_config(model_file=str(out)).learning
+    assert [p['trials'] for p in learned['source']['parts']] == [3, 2]
+    # The counts behind a row are both surveys' trials: 3 + 2 at each class representative,
+    # and the rolls of both (one per survey) in the uniform even-yaw row.
+    both = L.Experience.concatenate([L.experience_from_survey(json.loads(p.read_text()))
+                                     for p in (first, second)])
+    counts = L.pooled_counts(both)
+    m, s = L.CLASS_REP[LIFT][0]
+    assert counts[LIFT, m, s].sum() == 5
+    assert counts[LIFT, m, s, apply_rotation(cube.rot_y(-90.0), s)] == 2
+    assert learn_atg(['--survey', str(first), str(second), '--trials-per-class', '1']) == 2
+    assert 'needs a single --survey' in capsys.readouterr().err
+    with pytest.raises(L.LearningError, match='no experience'):
+        L.Experience.concatenate([])
+
+
 def test_learner_takes_a_survey_sized_experience():
     # 1040 transitions (the N = 20 survey's size), pooled and estimated. Its speed is a
     # benchmark figure (`learn_atg` prints it; docs/BENCHMARKS.md), not a timed test.

@@ -10,7 +10,8 @@ setup(
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         # The robot set's ATGs learned from the MuJoCo outcome survey (docs/BENCHMARKS.md).
-        ('share/' + PACKAGE + '/models', ['models/learned_robot_mujoco.npz']),
+        ('share/' + PACKAGE + '/models', ['models/learned_robot_mujoco.npz',
+                                          'models/learned_robot_mujoco_70trials.npz']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

@@ -562,13 +562,15 @@ def comparison_markdown(learned: LearnedTables, hand: np.ndarray | None = None,
     tv = total_variation(learned.probs, hand)
     info = learned.info
     fmt = lambda d: ', '.join(f'{k} {100 * v:.0f}%' for k, v in d.items()) or '-'  # noqa: E731
+    parts = info['source'].get('parts') or [info['source']]
+    sources = ', '.join(f"{p.get('kind', '?')} {p.get('path') or ''}".strip() for p in parts)
     lines = [
         f'# {title}', '',
         f"Dirichlet posterior mean, alpha = {info['alpha']:g} pseudo-trials, prior "
         f"'{info['prior']}' (epsilon {info['epsilon']:g}, neighbourhood "
         f"'{info['neighbourhood']}'), pooled over the symmetry classes: "
         f"{info['pooled']}; {info['transitions']} transitions "
-        f"(source: {info['source'].get('kind', '?')} {info['source'].get('path') or ''}).",
+        f'(source: {sources}).',
         '',
         f'Cells with total-variation distance > {TV_HIGHLIGHT:g} between the learned and the '
         f'hand-written row: {int((tv > TV_HIGHLIGHT).sum())} of {tv.size}; mean TV '

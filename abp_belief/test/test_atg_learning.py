@@ -1,6 +1,7 @@
 """The ATG learner (issue 13): Dirichlet estimate, pooling, counts, model files, CLI."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -255,8 +256,11 @@ def test_several_surveys_pool_their_trials(tmp_path, capsys):
     first.write_text(json.dumps(_survey(per_class=3)))
     second.write_text(json.dumps(_survey(per_class=2)))
     out = tmp_path / 'pooled.npz'
-    assert learn_atg(['--survey', str(first), str(second), '--out', str(out), '--json']) == 0
+    report = tmp_path / 'report.md'
+    assert learn_atg(['--survey', str(first), str(second), '--out', str(out), '--json',
+                      '--report', str(report)]) == 0
     assert json.loads(capsys.readouterr().out)['transitions'] == 14 * 5
+    assert f'outcome_survey {first}, outcome_survey {second}' in report.read_text()
     learned = population.model_set_from_config(model_file=str(out)).learning
     assert [p['trials'] for p in learned['source']['parts']] == [3, 2]
     # The counts behind a row are both surveys' trials: 3 + 2 at each class representative,
@@ -289,3 +293,16 @@ def test_learner_takes_a_survey_sized_experience():
     rows = np.argwhere(learned.trials >= 3)
     assert rows.size
     assert all(learned.probs[i, j, k].argmax() == k for i, j, k in rows)
+
+
+def test_shipped_model_files_load_as_the_nodes_load_them():
+    models = Path(__file__).resolve().parents[1] / 'models'
+    shipped = sorted(models.glob('*.npz'))
+    assert {p.name for p in shipped} >= {'learned_robot_mujoco.npz',
+                                         'learned_robot_mujoco_70trials.npz'}
+    for path in shipped:
+        loaded = population.model_set_from_config(model_file=str(path))
+        assert loaded.num_models == 30 and loaded.learning['alpha'] == 2.0
+    pooled = population.model_set_from_config(
+        model_file=str(models / 'learned_robot_mujoco_70trials.npz')).learning['source']
+    assert [p['trials'] for p in pooled['parts']] == [20, 50, 50]

@@ -3,10 +3,12 @@
 Pipeline per grey image (``TagDetector.detect``):
 
 1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off, threshold
-   windows 3-33 px and bit sampling tuned for small, blurred tags (8 px per cell, 30 %
-   cell margin ignored; see ``TagDetector.default_parameters``); on the whole image, or
-   only on a region of it (``roi``: where the cube was, ``RegionSearch``, which searches
-   the whole image every few frames).
+   windows 3 px and 7, 20, 33 px (two calls, ``THRESHOLD_WINDOWS``) and bit sampling
+   tuned for small, blurred tags (8 px per cell, 30 % cell margin ignored; see
+   ``TagDetector.default_parameters``); on the whole image, or only on a region of it
+   (``roi``: where the cube was, ``RegionSearch``, which searches the whole image every
+   few frames). The 7 px window finds flat tags whose thin quiet zone the 3 and 13 px
+   windows merge with the background (issue 16: 25 tags within 1.5 m).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
    ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
@@ -33,12 +35,13 @@ Pipeline per grey image (``TagDetector.detect``):
    Face search (``face_search``, on when ``cube_size`` > 0): the cube faces next to each
    found tag that face the camera (within 75 deg) and hold no found tag are predicted
    from the tag's pose (``face_search.adjacent_face_boxes``; the mirrored IPPE pose too
-   when ambiguity > ``FACE_SEARCH_AMBIGUITY``), and only their boxes are searched again
-   with a looser polygon fit and narrower threshold windows
-   (``face_search.blur_tolerant_parameters``) and perimeter limits from the predicted
-   tag size; the quads are refined and decoded as in step 3 and get poses as in step 4
-   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and JPEG
-   round into contours of more than four vertices.
+   when ambiguity > ``FACE_SEARCH_AMBIGUITY``) down to their marker quads; quads dark
+   inside against their quiet zone (``blur_decode.darkness``) are refined and decoded as
+   in step 3 or, failing that, by correlation with every code blurred by a set of
+   kernels (``blur_decode.decode_blurred``, ``blur_decode`` option), and get poses as in
+   step 4; a second round predicts from the tags the first found
+   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and
+   JPEG leave without any ArUco contour.
 6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
    distance apart are fitted as one rigid ARcube from all their corners, seeded by every
    IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
@@ -92,8 +95,9 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from .blur_decode import MIN_DARKNESS, darkness, decode_blurred
 from .corners import decode_quads, quad_areas, refine_quads
-from .face_search import adjacent_face_boxes, blur_tolerant_parameters
+from .face_search import adjacent_face_boxes, copy_parameters
 from .rigid_cube import fit_cubes
 
 __all__ = [
@@ -134,10 +138,13 @@ SMALL_TAG_PX2 = 40.0
 # Rejected contours re-examined per image (largest first). 16, not 24: the face search
 # finds most tags the last 8 did, and the 1 ms they cost pays for it (issue 16).
 MAX_CANDIDATES = 16
-# Face search (``face_search``): quads kept per image, and their perimeter against the
-# predicted tag's (pose errors, foreshortening the prediction misses).
-MAX_FACE_CANDIDATES = 12
-FACE_SIDE_RANGE = (0.5, 1.6)
+# ArUco's adaptive-threshold windows (min, max, step px), one detectMarkers call per set.
+THRESHOLD_WINDOWS = ((3, 3, 10), (7, 33, 13))
+# Accepted markers of two window sets with the same id and centres this close are one.
+DUPLICATE_PX = 3.0
+# Face search (``face_search``): rounds of prediction (the second from the tags the
+# first found: a cube's third face).
+FACE_SEARCH_ROUNDS = 2
 # Best / second IPPE reprojection error above which the face search also trusts a tag's
 # mirrored pose (below it, the mirrored pose only adds boxes on faces with no tag).
 FACE_SEARCH_AMBIGUITY = 0.6
@@ -546,7 +553,8 @@ class TagDetector:
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
-                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True):
+                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True,
+                 blur_decode: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -573,11 +581,14 @@ class TagDetector:
         self.cube_size = float(cube_size) if cube_size else 0.0
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
-        self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
+        # One ArUco detector per threshold-window set (THRESHOLD_WINDOWS); `aruco` is the
+        # first, kept for callers that set its parameters.
+        self.arucos = [cv2.aruco.ArucoDetector(self.dictionary, params)
+                       for params in self.window_parameters(self.params)]
+        self.aruco = self.arucos[0]
         # Face search (module face_search): needs the cube geometry.
         self.face_search = bool(face_search) and self.cube_size > 0
-        self.face_params = blur_tolerant_parameters(self.params)
-        self.face_aruco = cv2.aruco.ArucoDetector(self.dictionary, self.face_params)
+        self.blur_decode = bool(blur_decode)
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
@@ -605,6 +616,33 @@ class TagDetector:
         # image border, losing the marker.
         p.minMarkerDistanceRate = 0.05
         return p
+
+    @staticmethod
+    def window_parameters(base) -> list:
+        """Copies of `base`, one per THRESHOLD_WINDOWS set (min, max, step px)."""
+        out = []
+        for lo, hi, step in THRESHOLD_WINDOWS:
+            p = copy_parameters(base)
+            p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax = lo, hi
+            p.adaptiveThreshWinSizeStep = step
+            out.append(p)
+        return out
+
+    def _detect_markers(self, gray):
+        """ArUco with each threshold-window set: accepted markers (corners list, ids list;
+        one per id and place), rejected contours (list)."""
+        corners, ids, rejected = [], [], []
+        for aruco in self.arucos:
+            c, i, r = aruco.detectMarkers(gray)
+            for quad, tag_id in zip(c, [] if i is None else i.ravel()):
+                centre = quad.reshape(4, 2).mean(axis=0)
+                if any(int(tag_id) == k and np.abs(centre - q.reshape(4, 2).mean(axis=0)).max()
+                       < DUPLICATE_PX for q, k in zip(corners, ids)):
+                    continue                    # the same marker found by another set
+                corners.append(quad)
+                ids.append(int(tag_id))
+            rejected += [] if r is None else list(r)
+        return corners, ids, rejected
 
     def set_camera(self, camera_matrix, dist_coeffs=None, image_size=None):
         """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None) and the
@@ -649,16 +687,15 @@ class TagDetector:
         gray = self.check_image(gray)
         roi = clip_regions(roi, gray.shape)
         if roi is None:
-            corners, ids, rejected = self.aruco.detectMarkers(gray)
-            tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
+            corners, tag_ids, rejected = self._detect_markers(gray)
         else:
             corners, tag_ids, rejected = [], [], []
             for x0, y0, x1, y1 in roi:
-                c, i, r = self.aruco.detectMarkers(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+                c, i, r = self._detect_markers(np.ascontiguousarray(gray[y0:y1, x0:x1]))
                 offset = np.array([x0, y0], dtype=np.float32)
                 corners += [q + offset for q in c]
-                tag_ids += [] if i is None else [int(v) for v in i.ravel()]
-                rejected += [] if r is None else [q + offset for q in r]
+                tag_ids += i
+                rejected += [q + offset for q in r]
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
         cand = np.zeros((0, 4, 2))
         if self.second_pass and rejected is not None and len(rejected):
@@ -689,52 +726,79 @@ class TagDetector:
 
     def _search_faces(self, gray, detections):
         """Detections on the cube faces next to found tags that should show a tag and hold
-        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag),
-        searched with ``blur_tolerant_parameters`` and perimeter limits from the predicted
-        tag size, then refined and decoded as in the second pass."""
-        if not detections:
-            return []
+        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag):
+        the predicted marker quads themselves, decoded (``_decode_predicted``); then once
+        more from the tags this found (a cube's third face)."""
+        found, seeds = [], list(detections)
+        for _ in range(FACE_SEARCH_ROUNDS):
+            if not seeds:
+                break
+            boxes, quads = self._face_boxes(gray, seeds, detections + found)
+            if not len(boxes):
+                break
+            seeds = self._decode_predicted(gray, quads, detections + found)
+            found += seeds
+        return found
+
+    def _face_boxes(self, gray, seeds, detections):
         # The mirrored IPPE pose too where it is nearly as good (it puts the faces elsewhere).
-        boxes = adjacent_face_boxes(
+        boxes, quads = adjacent_face_boxes(
             np.concatenate([d.candidates if d.ambiguity > FACE_SEARCH_AMBIGUITY
-                            else d.candidates[:1] for d in detections]),
+                            else d.candidates[:1] for d in seeds]),
             np.array([d.pose[:3, 3] for d in detections]), self.camera_matrix,
-            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape)
-        boxes = boxes[boxes[:, 4] >= self.min_side_px]
-        if not len(boxes):
+            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape, with_quads=True)
+        keep = boxes[:, 4] >= self.min_side_px
+        return boxes[keep], quads[keep]
+
+    def _decode_predicted(self, gray, quads, detections):
+        """Detections at predicted marker quads (K, 4, 2): those dark inside against their
+        quiet zone (``blur_decode.darkness``; no marker otherwise), one per place, refined
+        and decoded by bits (``decode_quads``) or else, refined or as predicted, by
+        correlation with blurred codes (``decode_blurred``)."""
+        # Screen order: clockwise, as ArUco orders markers.
+        quads = quads.copy()
+        flip = quad_areas(quads) < 0
+        quads[flip] = quads[flip][:, ::-1]
+        cells = int(self.dictionary.markerSize) + 2
+        dark = darkness(gray, quads, cells)
+        keep = np.flatnonzero(dark >= MIN_DARKNESS)
+        # One quad per place (the same face predicted from several tags or poses): the
+        # darkest against its quiet zone, i.e. the best aligned with the marker.
+        keep = keep[np.argsort(-dark[keep], kind='stable')]
+        centres = quads[:, :, :].mean(axis=1)
+        chosen = []
+        for k in keep:
+            if all(np.linalg.norm(centres[k] - centres[j]) > 0.3 * np.sqrt(
+                    abs(quad_areas(quads[j:j + 1])[0])) for j in chosen):
+                chosen.append(k)
+        if not chosen:
             return []
-        regions = clip_regions(boxes[:, :4], gray.shape) or [(0, 0, gray.shape[1],
-                                                               gray.shape[0])]
-        box_centres = 0.5 * (boxes[:, :2] + boxes[:, 2:4])
-        cand = []
-        for x0, y0, x1, y1 in regions:
-            inside = ((box_centres >= (x0, y0)) & (box_centres <= (x1, y1))).all(axis=1)
-            sides = boxes[inside, 4] if inside.any() else boxes[:, 4]
-            # ArUco's perimeter limits are rates of the crop's larger side: only quads of
-            # about the predicted size get decoded (clutter in the crop costs little).
-            rate = 4.0 / float(max(x1 - x0, y1 - y0))
-            self.face_params.minMarkerPerimeterRate = rate * FACE_SIDE_RANGE[0] * sides.min()
-            self.face_params.maxMarkerPerimeterRate = rate * FACE_SIDE_RANGE[1] * sides.max()
-            self.face_aruco.setDetectorParameters(self.face_params)
-            found, _, rejected = self.face_aruco.detectMarkers(
-                np.ascontiguousarray(gray[y0:y1, x0:x1]))
-            offset = np.array([x0, y0], dtype=np.float64)
-            cand += [q.reshape(4, 2) + offset for q in list(found) + list(rejected)]
-        if not cand:
-            return []
+        quads = quads[chosen]
+        refined, ok = refine_quads(gray, quads)
+        res = decode_quads(gray, refined, self.dictionary)
+        out = [(np.roll(refined[k], res[k][1], axis=0), res[k][0])
+               for k in range(len(quads)) if ok[k] and res[k] is not None]
+        left = [k for k in range(len(quads)) if not (ok[k] and res[k] is not None)]
+        if self.blur_decode and left:
+            tries = [refined[k] for k in left if ok[k]] + [quads[k] for k in left]
+            owner = [k for k in left if ok[k]] + left
+            done = set()
+            for k, quad, r in zip(owner, tries, decode_blurred(gray, np.array(tries),
+                                                               self.dictionary)):
+                if r is not None and k not in done:
+                    done.add(k)
+                    out.append((np.roll(quad, r[1], axis=0), r[0]))
         known = np.array([d.corners for d in detections], dtype=np.float64)
-        cand = self._candidates(cand, known, MAX_FACE_CANDIDATES)
-        if not len(cand):
-            return []
-        refined, ok = refine_quads(gray, cand)
-        if not ok.any():
-            return []
-        quads, ids = self._decode_candidates(gray, refined[ok])
-        # A found tag seen again through another contour is not a new one.
-        new = ~_inside_any(quads.mean(axis=1), known)
-        poses = [self._pose(tag_id, quad)
-                 for tag_id, quad, keep in zip(ids, quads, new) if keep]
-        return [det for det in poses if not isinstance(det, DroppedDetection)]
+        dets = []
+        for quad, tag_id in out:
+            centre = quad.mean(axis=0)[None]
+            if _inside_any(centre, known)[0] or (
+                    dets and _inside_any(centre, np.array([d.corners for d in dets]))[0]):
+                continue
+            det = self._pose(tag_id, quad)
+            if not isinstance(det, DroppedDetection):
+                dets.append(det)
+        return dets
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`

@@ -34,7 +34,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-__all__ = ['decode_blurred', 'blur_kernels', 'code_matrix']
+__all__ = ['decode_blurred', 'blur_kernels', 'code_matrix', 'darkness', 'marker_contrast',
+           'square_homographies']
 
 # Canonical sample grid (marker spans [0, cells]); a little of the quiet zone included.
 _SAMPLES_PER_AXIS = 14
@@ -118,27 +119,92 @@ def _design(h_inv, samples, kernels, cells):
 
 @lru_cache(maxsize=4)
 def _screen_points(cells: int):
-    """Canonical points: cell centres (cells^2, 2), then a ring 0.4 cells outside."""
+    """Canonical points: cell centres (cells^2, 2, row-major), then a ring 0.4 cells
+    outside; and a mask of the border cells among the centres."""
     g = np.arange(cells) + 0.5
     inner = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
     lo, hi = np.full(cells, -0.4), np.full(cells, cells + 0.4)
     ring = np.concatenate([np.stack(p, axis=1) for p in ((g, lo), (g, hi), (lo, g), (hi, g))])
     pts = np.concatenate([inner, ring])
-    pts.flags.writeable = False
-    return pts, inner.shape[0]
+    ij = np.floor(inner).astype(int)
+    border = (ij == 0).any(axis=1) | (ij == cells - 1).any(axis=1)
+    for a in (pts, border):
+        a.flags.writeable = False
+    return pts, inner.shape[0], border
+
+
+def square_homographies(quads, cells: int) -> np.ndarray:
+    """(Q, 3, 3) homographies from the canonical square [0, cells]^2 (corners (0, 0),
+    (cells, 0), (cells, cells), (0, cells)) to each quad (Q, 4, 2), in one batched solve
+    (cv2.getPerspectiveTransform's system). Degenerate quads give non-finite rows."""
+    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
+    src = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float64)
+    n = q.shape[0]
+    a = np.zeros((n, 8, 8))
+    x, y = src[:, 0], src[:, 1]
+    u, v = q[..., 0], q[..., 1]
+    a[:, 0::2, 0], a[:, 0::2, 1], a[:, 0::2, 2] = x, y, 1.0
+    a[:, 1::2, 3], a[:, 1::2, 4], a[:, 1::2, 5] = x, y, 1.0
+    a[:, 0::2, 6], a[:, 0::2, 7] = -x * u, -y * u
+    a[:, 1::2, 6], a[:, 1::2, 7] = -x * v, -y * v
+    b = q.reshape(n, 8)
+    h = np.full((n, 9), np.nan)
+    ok = np.abs(np.linalg.det(a)) > 1e-12
+    if ok.any():
+        h[ok, :8] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
+        h[ok, 8] = 1.0
+    return h.reshape(n, 3, 3)
+
+
+def _cell_samples(gray, quads, cells: int) -> np.ndarray:
+    """(Q, cells^2 + 4 cells) grey values at ``_screen_points`` of each quad."""
+    pts, _, _ = _screen_points(cells)
+    h = square_homographies(quads, cells)
+    w = h[:, None, :, 2] + pts @ h[:, :, :2].transpose(0, 2, 1)       # (Q, P, 3)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        xy = w[..., :2] / w[..., 2:]
+    xy = np.where(np.isfinite(xy), xy, -1e4).astype(np.float32)
+    return cv2.remap(gray, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+
+
+def _quantiles(values, qs):
+    """np.percentile(values, 100 * qs, axis=1) (linear interpolation) of a (Q, N) array,
+    one sort instead of np.percentile's per-call overhead; (len(qs), Q)."""
+    v = np.sort(values, axis=1)
+    pos = np.asarray(qs, dtype=np.float64) * (v.shape[1] - 1)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, v.shape[1] - 1)
+    frac = pos - lo
+    return (v[:, lo] * (1.0 - frac) + v[:, hi] * frac).T
 
 
 def darkness(gray, quads, cells: int) -> np.ndarray:
     """(Q,) lower quartile of the quiet-zone ring minus the mean inside, grey levels."""
     q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
-    pts, n_in = _screen_points(cells)
-    square = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float32)
-    xy = np.stack([cv2.perspectiveTransform(
-        pts[None], cv2.getPerspectiveTransform(square, quad.astype(np.float32)))[0]
-        for quad in q]).astype(np.float32)
-    v = cv2.remap(gray, xy[..., 0], xy[..., 1], cv2.INTER_LINEAR,
-                  borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-    return np.percentile(v[:, n_in:], 25, axis=1) - v[:, :n_in].mean(axis=1)
+    if q.shape[0] == 0:
+        return np.zeros(0)
+    v = _cell_samples(gray, q, cells)
+    n_in = cells * cells
+    return _quantiles(v[:, n_in:], [0.25])[0] - v[:, :n_in].mean(axis=1)
+
+
+def marker_contrast(gray, quads, cells: int):
+    """Per quad (Q, 4, 2): (border, bits) contrasts, grey levels, at the cell centres.
+    `border`: the lower quartile of the quiet-zone ring (0.4 cells outside) minus the
+    median of the border cells (a marker's black frame: high); `bits`: the 90th minus
+    the 10th percentile of the inner cells (a code has black and white cells: high; a
+    dark blob or a square of texture is mostly uniform inside)."""
+    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
+    if q.shape[0] == 0:
+        return np.zeros(0), np.zeros(0)
+    _, n_in, border = _screen_points(cells)
+    v = _cell_samples(gray, q, cells)
+    inner = v[:, :n_in]
+    ring = _quantiles(v[:, n_in:], [0.25])[0]
+    frame = ring - _quantiles(inner[:, border], [0.5])[0]
+    bits = _quantiles(inner[:, ~border], [0.9, 0.1])
+    return frame, bits[0] - bits[1]
 
 
 def decode_blurred(gray, quads, dictionary, min_corr=MIN_CORR, margin=MARGIN,

@@ -3,18 +3,22 @@
 Pipeline per grey image (``TagDetector.detect``):
 
 1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off, threshold
-   windows 3 px and 7, 20, 33 px (two calls, ``THRESHOLD_WINDOWS``) and bit sampling
-   tuned for small, blurred tags (8 px per cell, 30 % cell margin ignored; see
-   ``TagDetector.default_parameters``); on the whole image, or only on a region of it
-   (``roi``: where the cube was, ``RegionSearch``, which searches the whole image every
-   few frames). The 7 px window finds flat tags whose thin quiet zone the 3 and 13 px
-   windows merge with the background (issue 16: 25 tags within 1.5 m).
+   windows 3 px, 7 px (larger contours only) and 11, 19 px on the image scaled by 0.6
+   (three calls, ``THRESHOLD_WINDOWS``) and bit sampling tuned for small, blurred tags
+   (8 px per cell, 30 % cell margin ignored; see ``TagDetector.default_parameters``); on
+   the whole image, or only on a region of it (``roi``: where the cube was,
+   ``RegionSearch``, which searches the whole image every few frames). The 7 px window
+   finds flat tags whose thin quiet zone the 3 and 13 px windows merge with the
+   background (issue 16: 25 tags within 1.5 m).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
    ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
    (``corners.decode_quads``, no error correction, black border and white quiet zone
-   required). Far, foreshortened tags are often rejected only because their integer
-   contour corners sample the bits badly. At most ``MAX_CANDIDATES`` (16), largest first.
+   required; where the edge fit fails, at the contour corners). Far, foreshortened
+   tags are often rejected only because their integer contour corners sample the bits
+   badly. Only contours that look like a marker at their corners (frame and bits
+   contrast, ``blur_decode.marker_contrast``, >= ``CANDIDATE_MIN_CONTRAST``), at most
+   ``MAX_CANDIDATES`` (16), largest first.
 4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
    points in its documented order (top-left, top-right, bottom-right, bottom-left at
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
@@ -95,7 +99,7 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
-from .blur_decode import MIN_DARKNESS, darkness, decode_blurred
+from .blur_decode import MIN_DARKNESS, darkness, decode_blurred, marker_contrast
 from .corners import decode_quads, quad_areas, refine_quads
 from .face_search import adjacent_face_boxes, copy_parameters
 from .rigid_cube import fit_cubes
@@ -138,8 +142,20 @@ SMALL_TAG_PX2 = 40.0
 # Rejected contours re-examined per image (largest first). 16, not 24: the face search
 # finds most tags the last 8 did, and the 1 ms they cost pays for it (issue 16).
 MAX_CANDIDATES = 16
-# ArUco's adaptive-threshold windows (min, max, step px), one detectMarkers call per set.
-THRESHOLD_WINDOWS = ((3, 3, 10), (7, 33, 13))
+# Rejected contours are refined only when they look like a marker at their contour
+# corners: quiet zone brighter than the border cells, and black and white inner cells,
+# both by this many grey levels (``blur_decode.marker_contrast``; ~60 % of the rejected
+# contours on the realistic suite fail it, none of those the second pass decodes).
+CANDIDATE_MIN_CONTRAST = 15.0
+# ArUco's adaptive-threshold windows, one detectMarkers call per set: (min, max, step px
+# of the image the call sees, image scale, minMarkerPerimeterRate or None: the default).
+# 3 px: small, far (and occluded) tags. 7 px: flat tags whose thin quiet zone the wider
+# windows merge with the background (issue 16); only contours of perimeter >= 0.1 of
+# the image width (tags within ~1.5 m; the smaller ones are the 3 px window's): half
+# the call's cost. 11 and 19 px on the image scaled by 0.6 (~18 and 32 px at full
+# size: large, dim, shaded or blurred tags): ~40 % of the cost of 20 and 33 px at full
+# size; its corners are scaled back and refined on the full image like the others.
+THRESHOLD_WINDOWS = ((3, 3, 10, 1.0, None), (7, 7, 10, 1.0, 0.1), (11, 19, 8, 0.6, None))
 # Accepted markers of two window sets with the same id and centres this close are one.
 DUPLICATE_PX = 3.0
 # Face search (``face_search``): rounds of prediction (the second from the tags the
@@ -540,6 +556,20 @@ class RegionSearch:
         return result
 
 
+def _scaled_detect(aruco, gray, scale: float):
+    """``aruco.detectMarkers`` on `gray` resized by `scale` (INTER_AREA; 1: as is), the
+    corners of accepted markers and rejected contours mapped back to `gray`'s pixels
+    (pixel centres: x_full = (x_scaled + 0.5) * cols / scaled cols - 0.5)."""
+    if scale == 1.0:
+        return aruco.detectMarkers(gray)
+    rows, cols = gray.shape
+    w, h = max(1, int(round(cols * scale))), max(1, int(round(rows * scale)))
+    c, i, r = aruco.detectMarkers(cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA))
+    factor = np.array([cols / w, rows / h], dtype=np.float32)
+    back = [(q + np.float32(0.5)) * factor - np.float32(0.5) for q in (c or ())]
+    return back, i, [(q + np.float32(0.5)) * factor - np.float32(0.5) for q in (r or ())]
+
+
 class TagDetector:
     """ArUco detection + IPPE_SQUARE poses with covariances, in the camera optical frame.
 
@@ -585,10 +615,12 @@ class TagDetector:
         # first, kept for callers that set its parameters.
         self.arucos = [cv2.aruco.ArucoDetector(self.dictionary, params)
                        for params in self.window_parameters(self.params)]
+        self.aruco_scales = [float(w[3]) for w in THRESHOLD_WINDOWS]
         self.aruco = self.arucos[0]
         # Face search (module face_search): needs the cube geometry.
         self.face_search = bool(face_search) and self.cube_size > 0
         self.blur_decode = bool(blur_decode)
+        self.screen_candidates = True
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
@@ -619,21 +651,25 @@ class TagDetector:
 
     @staticmethod
     def window_parameters(base) -> list:
-        """Copies of `base`, one per THRESHOLD_WINDOWS set (min, max, step px)."""
+        """Copies of `base`, one per THRESHOLD_WINDOWS set (windows min, max, step px and
+        the minimum marker perimeter rate where it is set)."""
         out = []
-        for lo, hi, step in THRESHOLD_WINDOWS:
+        for lo, hi, step, _, min_perimeter in THRESHOLD_WINDOWS:
             p = copy_parameters(base)
             p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax = lo, hi
             p.adaptiveThreshWinSizeStep = step
+            if min_perimeter is not None:
+                p.minMarkerPerimeterRate = float(min_perimeter)
             out.append(p)
         return out
 
     def _detect_markers(self, gray):
-        """ArUco with each threshold-window set: accepted markers (corners list, ids list;
-        one per id and place), rejected contours (list)."""
+        """ArUco with each threshold-window set (on the image scaled as THRESHOLD_WINDOWS
+        says): accepted markers (corners list, ids list; one per id and place), rejected
+        contours (list), in full-image pixels."""
         corners, ids, rejected = [], [], []
-        for aruco in self.arucos:
-            c, i, r = aruco.detectMarkers(gray)
+        for aruco, scale in zip(self.arucos, self.aruco_scales):
+            c, i, r = _scaled_detect(aruco, gray, scale)
             for quad, tag_id in zip(c, [] if i is None else i.ravel()):
                 centre = quad.reshape(4, 2).mean(axis=0)
                 if any(int(tag_id) == k and np.abs(centre - q.reshape(4, 2).mean(axis=0)).max()
@@ -699,12 +735,15 @@ class TagDetector:
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
         cand = np.zeros((0, 4, 2))
         if self.second_pass and rejected is not None and len(rejected):
-            cand = self._candidates(rejected, quads)
+            cand = self._candidates(gray, rejected, quads)
         if self.refine_corners and (len(tag_ids) or len(cand)):
             # One batch for the accepted markers and the second-pass candidates.
             refined, ok = refine_quads(gray, np.concatenate([quads, cand]))
             quads = refined[:len(tag_ids)]
-            cand = refined[len(tag_ids):][ok[len(tag_ids):]]
+            # Where the edge fit fails (blurred edges), the contour corners themselves
+            # are decoded (refine_quads keeps them): on the realistic suite they read
+            # blurred tags the fit loses.
+            cand = refined[len(tag_ids):]
         recovered = 0
         if len(cand):
             extra_quads, extra_ids = self._decode_candidates(gray, cand)
@@ -843,7 +882,7 @@ class TagDetector:
         check_image_size(gray.shape[1], gray.shape[0], self.image_size)
         return np.ascontiguousarray(gray)
 
-    def _candidates(self, rejected, accepted, limit=MAX_CANDIDATES):
+    def _candidates(self, gray, rejected, accepted, limit=MAX_CANDIDATES):
         """Rejected contours worth a second look: large enough, not inside an accepted
         marker (its inner contours), at most `limit`, largest first."""
         cand = np.concatenate(rejected, axis=None).astype(np.float64).reshape(-1, 4, 2)
@@ -852,6 +891,9 @@ class TagDetector:
         if accepted.shape[0] and keep.any():
             keep &= ~_inside_any(cand.mean(axis=1), accepted)
         idx = np.flatnonzero(keep)
+        if idx.size and self.screen_candidates:
+            frame, bits = marker_contrast(gray, cand[idx], int(self.dictionary.markerSize) + 2)
+            idx = idx[(frame >= CANDIDATE_MIN_CONTRAST) & (bits >= CANDIDATE_MIN_CONTRAST)]
         idx = idx[np.argsort(-area[idx], kind='stable')][:limit]
         return cand[idx]
 

@@ -86,3 +86,43 @@ def test_no_marker_no_decode():
     img = cv2.warpPerspective(fake, h, (160, 160), borderValue=110)
     res = decode_blurred(img, quad[None], DICT)[0]
     assert res is None
+
+
+def test_square_homographies_match_opencv_and_flag_degenerate_quads():
+    from abp_perception.blur_decode import square_homographies
+    rng = np.random.default_rng(3)
+    square = np.float32([[0, 0], [6, 0], [6, 6], [0, 6]])
+    quads = np.array([[[10, 12], [50, 8], [55, 60], [5, 49]],
+                      [[100, 100], [140, 104], [138, 150], [96, 144]]], float)
+    quads = quads + rng.normal(0, 0.5, quads.shape)
+    h = square_homographies(np.concatenate([quads, np.zeros((1, 4, 2))]), 6)
+    for k, quad in enumerate(quads):
+        np.testing.assert_allclose(
+            h[k], cv2.getPerspectiveTransform(square, quad.astype(np.float32)), rtol=1e-5,
+            atol=1e-5)
+    assert not np.isfinite(h[2]).any()
+
+
+def test_quantiles_are_numpy_percentiles():
+    from abp_perception.blur_decode import _quantiles
+    v = np.random.default_rng(4).normal(size=(5, 24))
+    np.testing.assert_allclose(_quantiles(v, [0.1, 0.25, 0.5, 0.9]),
+                               np.percentile(v, [10, 25, 50, 90], axis=1))
+
+
+def test_marker_contrast_tells_markers_from_dark_blobs_and_plain_texture():
+    from abp_perception.blur_decode import marker_contrast
+    gray, quad = _scene(17, side=26.0, blur=0)
+    frame, bits = marker_contrast(gray, quad[None], 6)
+    assert frame[0] > 60 and bits[0] > 60
+    # A uniformly dark square in the marker's place: a frame, but no bits.
+    blob = np.full_like(gray, 200)
+    cv2.fillConvexPoly(blob, np.round(quad).astype(np.int32), 40)
+    frame, bits = marker_contrast(blob, quad[None], 6)
+    assert frame[0] > 60 and bits[0] < 15
+    # Random texture: no dark frame against a brighter quiet zone.
+    noise = np.random.default_rng(6).integers(0, 256, gray.shape).astype(np.uint8)
+    noise = cv2.GaussianBlur(noise, (0, 0), 4.0)
+    frame, _ = marker_contrast(noise, quad[None], 6)
+    assert frame[0] < 15
+    assert [a.shape for a in marker_contrast(gray, np.zeros((0, 4, 2)), 6)] == [(0,), (0,)]

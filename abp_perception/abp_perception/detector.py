@@ -18,7 +18,8 @@ Pipeline per grey image (``TagDetector.detect``):
    tags are often rejected only because their integer contour corners sample the bits
    badly. Only contours that look like a marker at their corners (frame and bits
    contrast, ``blur_decode.marker_contrast``, >= ``CANDIDATE_MIN_CONTRAST``), at most
-   ``MAX_CANDIDATES`` (16), largest first.
+   ``MAX_CANDIDATES`` (16), largest first, one per place (the same contour found by
+   several threshold windows is refined once).
 4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
    points in its documented order (top-left, top-right, bottom-right, bottom-left at
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
@@ -147,6 +148,10 @@ MAX_CANDIDATES = 16
 # both by this many grey levels (``blur_decode.marker_contrast``; ~60 % of the rejected
 # contours on the realistic suite fail it, none of those the second pass decodes).
 CANDIDATE_MIN_CONTRAST = 15.0
+# Rejected contours whose centres are closer than this fraction of a larger one's side
+# (and areas within 1.5x) are the same contour from another threshold window: only the
+# largest is refined (the edge fit takes all of them to the same edges).
+CANDIDATE_DUPLICATE = 0.15
 # ArUco's adaptive-threshold windows, one detectMarkers call per set: (min, max, step px
 # of the image the call sees, image scale, minMarkerPerimeterRate or None: the default).
 # 3 px: small, far (and occluded) tags. 7 px: flat tags whose thin quiet zone the wider
@@ -884,7 +889,8 @@ class TagDetector:
 
     def _candidates(self, gray, rejected, accepted, limit=MAX_CANDIDATES):
         """Rejected contours worth a second look: large enough, not inside an accepted
-        marker (its inner contours), at most `limit`, largest first."""
+        marker (its inner contours), marker-like (``CANDIDATE_MIN_CONTRAST``), one per
+        place (``CANDIDATE_DUPLICATE``), at most `limit`, largest first."""
         cand = np.concatenate(rejected, axis=None).astype(np.float64).reshape(-1, 4, 2)
         area = np.abs(quad_areas(cand))
         keep = area >= self.min_side_px ** 2
@@ -894,7 +900,21 @@ class TagDetector:
         if idx.size and self.screen_candidates:
             frame, bits = marker_contrast(gray, cand[idx], int(self.dictionary.markerSize) + 2)
             idx = idx[(frame >= CANDIDATE_MIN_CONTRAST) & (bits >= CANDIDATE_MIN_CONTRAST)]
-        idx = idx[np.argsort(-area[idx], kind='stable')][:limit]
+        idx = idx[np.argsort(-area[idx], kind='stable')]
+        if idx.size > 1 and CANDIDATE_DUPLICATE > 0:
+            # The same contour from several threshold windows: refined to the same edges,
+            # so only the largest of those (centres within CANDIDATE_DUPLICATE of its side,
+            # areas within 1.5x) is kept.
+            c = cand[idx].mean(axis=1)
+            a = area[idx]
+            near = (np.linalg.norm(c[:, None] - c[None], axis=2)
+                    < CANDIDATE_DUPLICATE * np.sqrt(a)[None]) & (a[None] < 1.5 * a[:, None])
+            dup = np.zeros(idx.size, dtype=bool)
+            for k in range(idx.size):
+                if not dup[k]:
+                    dup[k + 1:] |= near[k + 1:, k]
+            idx = idx[~dup]
+        idx = idx[:limit]
         return cand[idx]
 
     def _decode_candidates(self, gray, cand):

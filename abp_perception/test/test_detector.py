@@ -479,3 +479,22 @@ def test_rejected_contours_that_do_not_look_like_markers_are_not_refined(detecto
         assert len(detector._candidates(image, rejected, np.zeros((0, 4, 2)))) == 2
     finally:
         detector.screen_candidates = True
+
+
+def test_the_same_contour_from_several_windows_is_refined_once(detector):
+    import abp_perception.detector as dm
+    image, left, right = _two_tags_apart()
+    centre = left.mean(axis=0)
+    copies = [centre + 0.96 * (left - centre), right, left + 0.7, left]
+    rejected = [q.reshape(1, 4, 2).astype(np.float32) for q in copies]
+    kept = detector._candidates(image, rejected, np.zeros((0, 4, 2)))
+    assert len(kept) == 2
+    # The largest of the duplicates (not the first given), and the other tag.
+    assert np.abs(kept - left).max(axis=(1, 2)).min() < 0.71
+    assert np.abs(kept - right).max(axis=(1, 2)).min() < 1e-4
+    old = dm.CANDIDATE_DUPLICATE
+    dm.CANDIDATE_DUPLICATE = 0.0
+    try:
+        assert len(detector._candidates(image, rejected, np.zeros((0, 4, 2)))) == 4
+    finally:
+        dm.CANDIDATE_DUPLICATE = old

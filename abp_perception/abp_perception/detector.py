@@ -3,16 +3,23 @@
 Pipeline per grey image (``TagDetector.detect``):
 
 1. ``cv2.aruco.ArucoDetector.detectMarkers`` with corner refinement off, threshold
-   windows 3-33 px and bit sampling tuned for small, blurred tags (8 px per cell, 30 %
-   cell margin ignored; see ``TagDetector.default_parameters``); on the whole image, or
-   only on a region of it (``roi``: where the cube was, ``RegionSearch``, which searches
-   the whole image every few frames).
+   windows 3 px, 7 px (larger contours only) and 11, 19 px on the image scaled by 0.6
+   (three calls, ``THRESHOLD_WINDOWS``) and bit sampling tuned for small, blurred tags
+   (8 px per cell, 30 % cell margin ignored; see ``TagDetector.default_parameters``); on
+   the whole image, or only on a region of it (``roi``: where the cube was,
+   ``RegionSearch``, which searches the whole image every few frames). The 7 px window
+   finds flat tags whose thin quiet zone the 3 and 13 px windows merge with the
+   background (issue 16: 25 tags within 1.5 m).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
    ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
    (``corners.decode_quads``, no error correction, black border and white quiet zone
-   required). Far, foreshortened tags are often rejected only because their integer
-   contour corners sample the bits badly. At most ``MAX_CANDIDATES`` (16), largest first.
+   required; where the edge fit fails, at the contour corners). Far, foreshortened
+   tags are often rejected only because their integer contour corners sample the bits
+   badly. Only contours that look like a marker at their corners (frame and bits
+   contrast, ``blur_decode.marker_contrast``, >= ``CANDIDATE_MIN_CONTRAST``), at most
+   ``MAX_CANDIDATES`` (16), largest first, one per place (the same contour found by
+   several threshold windows is refined once).
 4. Pose of each tag by ``cv2.solvePnPGeneric`` with ``SOLVEPNP_IPPE_SQUARE``: object
    points in its documented order (top-left, top-right, bottom-right, bottom-left at
    (-s/2, s/2), (s/2, s/2), (s/2, -s/2), (-s/2, -s/2)), i.e. ArUco's corner order; the
@@ -33,12 +40,13 @@ Pipeline per grey image (``TagDetector.detect``):
    Face search (``face_search``, on when ``cube_size`` > 0): the cube faces next to each
    found tag that face the camera (within 75 deg) and hold no found tag are predicted
    from the tag's pose (``face_search.adjacent_face_boxes``; the mirrored IPPE pose too
-   when ambiguity > ``FACE_SEARCH_AMBIGUITY``), and only their boxes are searched again
-   with a looser polygon fit and narrower threshold windows
-   (``face_search.blur_tolerant_parameters``) and perimeter limits from the predicted
-   tag size; the quads are refined and decoded as in step 3 and get poses as in step 4
-   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and JPEG
-   round into contours of more than four vertices.
+   when ambiguity > ``FACE_SEARCH_AMBIGUITY``) down to their marker quads; quads dark
+   inside against their quiet zone (``blur_decode.darkness``) are refined and decoded as
+   in step 3 or, failing that, by correlation with every code blurred by a set of
+   kernels (``blur_decode.decode_blurred``, ``blur_decode`` option), and get poses as in
+   step 4; a second round predicts from the tags the first found
+   (``DetectionResult.face_search`` counts them). It finds tags that motion blur and
+   JPEG leave without any ArUco contour.
 6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
    distance apart are fitted as one rigid ARcube from all their corners, seeded by every
    IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
@@ -92,8 +100,9 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 
+from .blur_decode import MIN_DARKNESS, darkness, decode_blurred, marker_contrast
 from .corners import decode_quads, quad_areas, refine_quads
-from .face_search import adjacent_face_boxes, blur_tolerant_parameters
+from .face_search import adjacent_face_boxes, copy_parameters
 from .rigid_cube import fit_cubes
 
 __all__ = [
@@ -134,10 +143,29 @@ SMALL_TAG_PX2 = 40.0
 # Rejected contours re-examined per image (largest first). 16, not 24: the face search
 # finds most tags the last 8 did, and the 1 ms they cost pays for it (issue 16).
 MAX_CANDIDATES = 16
-# Face search (``face_search``): quads kept per image, and their perimeter against the
-# predicted tag's (pose errors, foreshortening the prediction misses).
-MAX_FACE_CANDIDATES = 12
-FACE_SIDE_RANGE = (0.5, 1.6)
+# Rejected contours are refined only when they look like a marker at their contour
+# corners: quiet zone brighter than the border cells, and black and white inner cells,
+# both by this many grey levels (``blur_decode.marker_contrast``; ~60 % of the rejected
+# contours on the realistic suite fail it, none of those the second pass decodes).
+CANDIDATE_MIN_CONTRAST = 15.0
+# Rejected contours whose centres are closer than this fraction of a larger one's side
+# (and areas within 1.5x) are the same contour from another threshold window: only the
+# largest is refined (the edge fit takes all of them to the same edges).
+CANDIDATE_DUPLICATE = 0.15
+# ArUco's adaptive-threshold windows, one detectMarkers call per set: (min, max, step px
+# of the image the call sees, image scale, minMarkerPerimeterRate or None: the default).
+# 3 px: small, far (and occluded) tags. 7 px: flat tags whose thin quiet zone the wider
+# windows merge with the background (issue 16); only contours of perimeter >= 0.1 of
+# the image width (tags within ~1.5 m; the smaller ones are the 3 px window's): half
+# the call's cost. 11 and 19 px on the image scaled by 0.6 (~18 and 32 px at full
+# size: large, dim, shaded or blurred tags): ~40 % of the cost of 20 and 33 px at full
+# size; its corners are scaled back and refined on the full image like the others.
+THRESHOLD_WINDOWS = ((3, 3, 10, 1.0, None), (7, 7, 10, 1.0, 0.1), (11, 19, 8, 0.6, None))
+# Accepted markers of two window sets with the same id and centres this close are one.
+DUPLICATE_PX = 3.0
+# Face search (``face_search``): rounds of prediction (the second from the tags the
+# first found: a cube's third face).
+FACE_SEARCH_ROUNDS = 2
 # Best / second IPPE reprojection error above which the face search also trusts a tag's
 # mirrored pose (below it, the mirrored pose only adds boxes on faces with no tag).
 FACE_SEARCH_AMBIGUITY = 0.6
@@ -533,6 +561,20 @@ class RegionSearch:
         return result
 
 
+def _scaled_detect(aruco, gray, scale: float):
+    """``aruco.detectMarkers`` on `gray` resized by `scale` (INTER_AREA; 1: as is), the
+    corners of accepted markers and rejected contours mapped back to `gray`'s pixels
+    (pixel centres: x_full = (x_scaled + 0.5) * cols / scaled cols - 0.5)."""
+    if scale == 1.0:
+        return aruco.detectMarkers(gray)
+    rows, cols = gray.shape
+    w, h = max(1, int(round(cols * scale))), max(1, int(round(rows * scale)))
+    c, i, r = aruco.detectMarkers(cv2.resize(gray, (w, h), interpolation=cv2.INTER_AREA))
+    factor = np.array([cols / w, rows / h], dtype=np.float32)
+    back = [(q + np.float32(0.5)) * factor - np.float32(0.5) for q in (c or ())]
+    return back, i, [(q + np.float32(0.5)) * factor - np.float32(0.5) for q in (r or ())]
+
+
 class TagDetector:
     """ArUco detection + IPPE_SQUARE poses with covariances, in the camera optical frame.
 
@@ -546,7 +588,8 @@ class TagDetector:
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
-                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True):
+                 image_size=None, cube_size: float | None = 0.10, face_search: bool = True,
+                 blur_decode: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -573,11 +616,16 @@ class TagDetector:
         self.cube_size = float(cube_size) if cube_size else 0.0
         self.object_points = marker_object_points(self.marker_size)
         self.params = self.default_parameters(refine_corners=self.refine_corners)
-        self.aruco = cv2.aruco.ArucoDetector(self.dictionary, self.params)
+        # One ArUco detector per threshold-window set (THRESHOLD_WINDOWS); `aruco` is the
+        # first, kept for callers that set its parameters.
+        self.arucos = [cv2.aruco.ArucoDetector(self.dictionary, params)
+                       for params in self.window_parameters(self.params)]
+        self.aruco_scales = [float(w[3]) for w in THRESHOLD_WINDOWS]
+        self.aruco = self.arucos[0]
         # Face search (module face_search): needs the cube geometry.
         self.face_search = bool(face_search) and self.cube_size > 0
-        self.face_params = blur_tolerant_parameters(self.params)
-        self.face_aruco = cv2.aruco.ArucoDetector(self.dictionary, self.face_params)
+        self.blur_decode = bool(blur_decode)
+        self.screen_candidates = True
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
     @staticmethod
@@ -605,6 +653,37 @@ class TagDetector:
         # image border, losing the marker.
         p.minMarkerDistanceRate = 0.05
         return p
+
+    @staticmethod
+    def window_parameters(base) -> list:
+        """Copies of `base`, one per THRESHOLD_WINDOWS set (windows min, max, step px and
+        the minimum marker perimeter rate where it is set)."""
+        out = []
+        for lo, hi, step, _, min_perimeter in THRESHOLD_WINDOWS:
+            p = copy_parameters(base)
+            p.adaptiveThreshWinSizeMin, p.adaptiveThreshWinSizeMax = lo, hi
+            p.adaptiveThreshWinSizeStep = step
+            if min_perimeter is not None:
+                p.minMarkerPerimeterRate = float(min_perimeter)
+            out.append(p)
+        return out
+
+    def _detect_markers(self, gray):
+        """ArUco with each threshold-window set (on the image scaled as THRESHOLD_WINDOWS
+        says): accepted markers (corners list, ids list; one per id and place), rejected
+        contours (list), in full-image pixels."""
+        corners, ids, rejected = [], [], []
+        for aruco, scale in zip(self.arucos, self.aruco_scales):
+            c, i, r = _scaled_detect(aruco, gray, scale)
+            for quad, tag_id in zip(c, [] if i is None else i.ravel()):
+                centre = quad.reshape(4, 2).mean(axis=0)
+                if any(int(tag_id) == k and np.abs(centre - q.reshape(4, 2).mean(axis=0)).max()
+                       < DUPLICATE_PX for q, k in zip(corners, ids)):
+                    continue                    # the same marker found by another set
+                corners.append(quad)
+                ids.append(int(tag_id))
+            rejected += [] if r is None else list(r)
+        return corners, ids, rejected
 
     def set_camera(self, camera_matrix, dist_coeffs=None, image_size=None):
         """Intrinsics (3 x 3 K; distortion coefficients in OpenCV order or None) and the
@@ -649,25 +728,27 @@ class TagDetector:
         gray = self.check_image(gray)
         roi = clip_regions(roi, gray.shape)
         if roi is None:
-            corners, ids, rejected = self.aruco.detectMarkers(gray)
-            tag_ids = [] if ids is None else [int(i) for i in ids.ravel()]
+            corners, tag_ids, rejected = self._detect_markers(gray)
         else:
             corners, tag_ids, rejected = [], [], []
             for x0, y0, x1, y1 in roi:
-                c, i, r = self.aruco.detectMarkers(np.ascontiguousarray(gray[y0:y1, x0:x1]))
+                c, i, r = self._detect_markers(np.ascontiguousarray(gray[y0:y1, x0:x1]))
                 offset = np.array([x0, y0], dtype=np.float32)
                 corners += [q + offset for q in c]
-                tag_ids += [] if i is None else [int(v) for v in i.ravel()]
-                rejected += [] if r is None else [q + offset for q in r]
+                tag_ids += i
+                rejected += [q + offset for q in r]
         quads = np.array([c.reshape(4, 2) for c in corners], dtype=np.float64).reshape(-1, 4, 2)
         cand = np.zeros((0, 4, 2))
         if self.second_pass and rejected is not None and len(rejected):
-            cand = self._candidates(rejected, quads)
+            cand = self._candidates(gray, rejected, quads)
         if self.refine_corners and (len(tag_ids) or len(cand)):
             # One batch for the accepted markers and the second-pass candidates.
             refined, ok = refine_quads(gray, np.concatenate([quads, cand]))
             quads = refined[:len(tag_ids)]
-            cand = refined[len(tag_ids):][ok[len(tag_ids):]]
+            # Where the edge fit fails (blurred edges), the contour corners themselves
+            # are decoded (refine_quads keeps them): on the realistic suite they read
+            # blurred tags the fit loses.
+            cand = refined[len(tag_ids):]
         recovered = 0
         if len(cand):
             extra_quads, extra_ids = self._decode_candidates(gray, cand)
@@ -689,52 +770,79 @@ class TagDetector:
 
     def _search_faces(self, gray, detections):
         """Detections on the cube faces next to found tags that should show a tag and hold
-        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag),
-        searched with ``blur_tolerant_parameters`` and perimeter limits from the predicted
-        tag size, then refined and decoded as in the second pass."""
-        if not detections:
-            return []
+        none found (``face_search.adjacent_face_boxes`` from both IPPE poses of each tag):
+        the predicted marker quads themselves, decoded (``_decode_predicted``); then once
+        more from the tags this found (a cube's third face)."""
+        found, seeds = [], list(detections)
+        for _ in range(FACE_SEARCH_ROUNDS):
+            if not seeds:
+                break
+            boxes, quads = self._face_boxes(gray, seeds, detections + found)
+            if not len(boxes):
+                break
+            seeds = self._decode_predicted(gray, quads, detections + found)
+            found += seeds
+        return found
+
+    def _face_boxes(self, gray, seeds, detections):
         # The mirrored IPPE pose too where it is nearly as good (it puts the faces elsewhere).
-        boxes = adjacent_face_boxes(
+        boxes, quads = adjacent_face_boxes(
             np.concatenate([d.candidates if d.ambiguity > FACE_SEARCH_AMBIGUITY
-                            else d.candidates[:1] for d in detections]),
+                            else d.candidates[:1] for d in seeds]),
             np.array([d.pose[:3, 3] for d in detections]), self.camera_matrix,
-            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape)
-        boxes = boxes[boxes[:, 4] >= self.min_side_px]
-        if not len(boxes):
+            self.dist_coeffs, self.cube_size, self.marker_size, gray.shape, with_quads=True)
+        keep = boxes[:, 4] >= self.min_side_px
+        return boxes[keep], quads[keep]
+
+    def _decode_predicted(self, gray, quads, detections):
+        """Detections at predicted marker quads (K, 4, 2): those dark inside against their
+        quiet zone (``blur_decode.darkness``; no marker otherwise), one per place, refined
+        and decoded by bits (``decode_quads``) or else, refined or as predicted, by
+        correlation with blurred codes (``decode_blurred``)."""
+        # Screen order: clockwise, as ArUco orders markers.
+        quads = quads.copy()
+        flip = quad_areas(quads) < 0
+        quads[flip] = quads[flip][:, ::-1]
+        cells = int(self.dictionary.markerSize) + 2
+        dark = darkness(gray, quads, cells)
+        keep = np.flatnonzero(dark >= MIN_DARKNESS)
+        # One quad per place (the same face predicted from several tags or poses): the
+        # darkest against its quiet zone, i.e. the best aligned with the marker.
+        keep = keep[np.argsort(-dark[keep], kind='stable')]
+        centres = quads[:, :, :].mean(axis=1)
+        chosen = []
+        for k in keep:
+            if all(np.linalg.norm(centres[k] - centres[j]) > 0.3 * np.sqrt(
+                    abs(quad_areas(quads[j:j + 1])[0])) for j in chosen):
+                chosen.append(k)
+        if not chosen:
             return []
-        regions = clip_regions(boxes[:, :4], gray.shape) or [(0, 0, gray.shape[1],
-                                                               gray.shape[0])]
-        box_centres = 0.5 * (boxes[:, :2] + boxes[:, 2:4])
-        cand = []
-        for x0, y0, x1, y1 in regions:
-            inside = ((box_centres >= (x0, y0)) & (box_centres <= (x1, y1))).all(axis=1)
-            sides = boxes[inside, 4] if inside.any() else boxes[:, 4]
-            # ArUco's perimeter limits are rates of the crop's larger side: only quads of
-            # about the predicted size get decoded (clutter in the crop costs little).
-            rate = 4.0 / float(max(x1 - x0, y1 - y0))
-            self.face_params.minMarkerPerimeterRate = rate * FACE_SIDE_RANGE[0] * sides.min()
-            self.face_params.maxMarkerPerimeterRate = rate * FACE_SIDE_RANGE[1] * sides.max()
-            self.face_aruco.setDetectorParameters(self.face_params)
-            found, _, rejected = self.face_aruco.detectMarkers(
-                np.ascontiguousarray(gray[y0:y1, x0:x1]))
-            offset = np.array([x0, y0], dtype=np.float64)
-            cand += [q.reshape(4, 2) + offset for q in list(found) + list(rejected)]
-        if not cand:
-            return []
+        quads = quads[chosen]
+        refined, ok = refine_quads(gray, quads)
+        res = decode_quads(gray, refined, self.dictionary)
+        out = [(np.roll(refined[k], res[k][1], axis=0), res[k][0])
+               for k in range(len(quads)) if ok[k] and res[k] is not None]
+        left = [k for k in range(len(quads)) if not (ok[k] and res[k] is not None)]
+        if self.blur_decode and left:
+            tries = [refined[k] for k in left if ok[k]] + [quads[k] for k in left]
+            owner = [k for k in left if ok[k]] + left
+            done = set()
+            for k, quad, r in zip(owner, tries, decode_blurred(gray, np.array(tries),
+                                                               self.dictionary)):
+                if r is not None and k not in done:
+                    done.add(k)
+                    out.append((np.roll(quad, r[1], axis=0), r[0]))
         known = np.array([d.corners for d in detections], dtype=np.float64)
-        cand = self._candidates(cand, known, MAX_FACE_CANDIDATES)
-        if not len(cand):
-            return []
-        refined, ok = refine_quads(gray, cand)
-        if not ok.any():
-            return []
-        quads, ids = self._decode_candidates(gray, refined[ok])
-        # A found tag seen again through another contour is not a new one.
-        new = ~_inside_any(quads.mean(axis=1), known)
-        poses = [self._pose(tag_id, quad)
-                 for tag_id, quad, keep in zip(ids, quads, new) if keep]
-        return [det for det in poses if not isinstance(det, DroppedDetection)]
+        dets = []
+        for quad, tag_id in out:
+            centre = quad.mean(axis=0)[None]
+            if _inside_any(centre, known)[0] or (
+                    dets and _inside_any(centre, np.array([d.corners for d in dets]))[0]):
+                continue
+            det = self._pose(tag_id, quad)
+            if not isinstance(det, DroppedDetection):
+                dets.append(det)
+        return dets
 
     def _rigid_cubes(self, detections):
         """Fit one rigid pose per cube of >= 2 tags (``rigid_cube``); its tags' `pose`
@@ -779,16 +887,34 @@ class TagDetector:
         check_image_size(gray.shape[1], gray.shape[0], self.image_size)
         return np.ascontiguousarray(gray)
 
-    def _candidates(self, rejected, accepted, limit=MAX_CANDIDATES):
+    def _candidates(self, gray, rejected, accepted, limit=MAX_CANDIDATES):
         """Rejected contours worth a second look: large enough, not inside an accepted
-        marker (its inner contours), at most `limit`, largest first."""
+        marker (its inner contours), marker-like (``CANDIDATE_MIN_CONTRAST``), one per
+        place (``CANDIDATE_DUPLICATE``), at most `limit`, largest first."""
         cand = np.concatenate(rejected, axis=None).astype(np.float64).reshape(-1, 4, 2)
         area = np.abs(quad_areas(cand))
         keep = area >= self.min_side_px ** 2
         if accepted.shape[0] and keep.any():
             keep &= ~_inside_any(cand.mean(axis=1), accepted)
         idx = np.flatnonzero(keep)
-        idx = idx[np.argsort(-area[idx], kind='stable')][:limit]
+        if idx.size and self.screen_candidates:
+            frame, bits = marker_contrast(gray, cand[idx], int(self.dictionary.markerSize) + 2)
+            idx = idx[(frame >= CANDIDATE_MIN_CONTRAST) & (bits >= CANDIDATE_MIN_CONTRAST)]
+        idx = idx[np.argsort(-area[idx], kind='stable')]
+        if idx.size > 1 and CANDIDATE_DUPLICATE > 0:
+            # The same contour from several threshold windows: refined to the same edges,
+            # so only the largest of those (centres within CANDIDATE_DUPLICATE of its side,
+            # areas within 1.5x) is kept.
+            c = cand[idx].mean(axis=1)
+            a = area[idx]
+            near = (np.linalg.norm(c[:, None] - c[None], axis=2)
+                    < CANDIDATE_DUPLICATE * np.sqrt(a)[None]) & (a[None] < 1.5 * a[:, None])
+            dup = np.zeros(idx.size, dtype=bool)
+            for k in range(idx.size):
+                if not dup[k]:
+                    dup[k + 1:] |= near[k + 1:, k]
+            idx = idx[~dup]
+        idx = idx[:limit]
         return cand[idx]
 
     def _decode_candidates(self, gray, cand):

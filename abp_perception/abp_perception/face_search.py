@@ -4,16 +4,15 @@ Plain NumPy + OpenCV, no rclpy.
 
 Under motion blur and strong JPEG, most tags the detector misses are not rejected by
 decoding: ArUco never sees a quad there, because blur rounds the black border into a
-contour of more than four vertices at the default polygon accuracy (0.03 of the
-perimeter) and the smeared bits merge with it at the wide threshold windows. A looser
-fit (0.05) and narrower windows (7, 13 px) find them, but on the whole image they also
-turn clutter into many more candidates (about 1.4x our CPU). Most of those tags sit on a
-cube face next to a tag that was found (issue 16, realistic suite: 20 of 26 misses
-within 1.5 m under blur and JPEG). So ``adjacent_face_boxes`` predicts, from each found
-tag's pose(s), the image boxes of its cube's adjacent faces that face the camera and
-hold no found tag, and the detector searches only those with
-``blur_tolerant_parameters`` (perimeter limits from the predicted tag size keep clutter
-out); the quads it returns are refined and decoded like the second pass's.
+contour of more than four vertices and the smeared bits merge with it (or with the next
+face's tag across the thin cube edge). Most of those tags sit on a cube face next to a
+tag that was found (issue 16). So ``adjacent_face_boxes`` predicts, from each found
+tag's pose(s), where its cube's adjacent faces that face the camera and hold no found
+tag are: their image boxes and (``with_quads``) the projected marker quads, which the
+detector refines and decodes directly, with no contour search at all (a found tag's
+pose puts the next face's marker within a pixel or two; the edge fit of
+``corners.refine_quads`` recovers that, and ``blur_decode`` reads markers too blurred
+for their bits).
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ import numpy as np
 
 from .corners import quad_areas
 
-__all__ = ['adjacent_face_boxes', 'blur_tolerant_parameters']
+__all__ = ['adjacent_face_boxes', 'copy_parameters']
 
 # The four faces next to a tag's face, in the tag frame (x right, y up, z out of the
 # face): outward normal and the in-plane axis of that face other than z.
@@ -33,9 +32,8 @@ _Z = np.array([0.0, 0.0, 1.0])
 _SQUARE = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
 
 
-def blur_tolerant_parameters(base: "cv2.aruco.DetectorParameters"):
-    """A copy of `base` with a looser polygon fit (0.05 of the perimeter, default 0.03)
-    and threshold windows 7 and 13 px: blurred borders stay one 4-vertex contour."""
+def copy_parameters(base: "cv2.aruco.DetectorParameters"):
+    """A copy of ArUco detector parameters (cv2's objects have no copy)."""
     p = cv2.aruco.DetectorParameters()
     for name in dir(base):
         if not name.startswith('_') and not callable(getattr(base, name)):
@@ -43,15 +41,12 @@ def blur_tolerant_parameters(base: "cv2.aruco.DetectorParameters"):
                 setattr(p, name, getattr(base, name))
             except (AttributeError, TypeError):
                 pass
-    p.polygonalApproxAccuracyRate = 0.05
-    p.adaptiveThreshWinSizeMin = 7
-    p.adaptiveThreshWinSizeMax = 13
-    p.adaptiveThreshWinSizeStep = 6
     return p
 
 
 def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_size,
-                        marker_size, shape, max_angle_deg=75.0, margin_px=6.0):
+                        marker_size, shape, max_angle_deg=75.0, margin_px=6.0,
+                        with_quads=False):
     """Image boxes of cube faces that should hold a tag nobody found.
 
     `poses` (N, 4, 4): tag -> camera poses of found tags (several per tag are fine, e.g.
@@ -62,10 +57,11 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
     are returned as (x0, y0, x1, y1, tag side px) rows (K, 5): the face's projected
     bounding box grown by `margin_px` and clipped to `shape` (rows, cols), and the
     apparent side of a marker of `marker_size` there (sqrt of its projected area).
+    `with_quads`: also the projected marker corners (K, 4, 2), as (boxes, quads).
     """
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
     if poses.shape[0] == 0:
-        return np.zeros((0, 5))
+        return (np.zeros((0, 5)), np.zeros((0, 4, 2))) if with_quads else np.zeros((0, 5))
     half = 0.5 * float(cube_size)
     rot, trans = poses[:, :3, :3], poses[:, :3, 3]
     # Face centres and outward normals in the camera frame, (N, 4, 3).
@@ -81,7 +77,7 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
         wanted &= gap.min(axis=2) > 0.5 * half
     n_idx, f_idx = np.nonzero(wanted)
     if n_idx.size == 0:
-        return np.zeros((0, 5))
+        return (np.zeros((0, 5)), np.zeros((0, 4, 2))) if with_quads else np.zeros((0, 5))
     # Face and marker corners (K, 4, 3): centre + a (across) + b (z) on each face.
     across = np.einsum('kij,kj->ki', rot[n_idx], _ACROSS[f_idx])
     up = rot[n_idx][:, :, 2]
@@ -101,4 +97,5 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
     lo = np.clip(lo, 0, (w, h))
     hi = np.clip(hi, 0, (w, h))
     inside = (hi - lo >= 1.0).all(axis=1) & np.isfinite(px).all(axis=(1, 2))
-    return np.concatenate([lo, hi, np.sqrt(area)[:, None]], axis=1)[inside]
+    boxes = np.concatenate([lo, hi, np.sqrt(area)[:, None]], axis=1)[inside]
+    return (boxes, px[inside, 4:]) if with_quads else boxes

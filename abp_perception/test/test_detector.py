@@ -430,3 +430,71 @@ def test_region_search_looks_everywhere_after_losing_the_tags_or_a_new_detector(
     assert all(always.detect(detector, image).roi is None for _ in range(3))
     with pytest.raises(ValueError, match='full_frame_every'):
         RegionSearch(full_frame_every=0)
+
+
+# -- scaled threshold windows and the candidate screen (issue 16) --------------------------
+
+def test_scaled_detection_maps_corners_back_to_full_image_pixels():
+    from abp_perception.detector import THRESHOLD_WINDOWS, _scaled_detect
+
+    class Fake:
+        """Records the image it is given; 'finds' the quad q in that image's pixels."""
+        q = np.array([[[10.0, 20.0], [40.0, 20.0], [40.0, 50.0], [10.0, 50.0]]], np.float32)
+
+        def detectMarkers(self, img):
+            self.shape = img.shape
+            return (self.q,), np.array([[7]]), (self.q + 1.0,)
+
+    fake = Fake()
+    c, i, r = _scaled_detect(fake, np.zeros((480, 640), np.uint8), 0.6)
+    assert fake.shape == (288, 384) and i[0, 0] == 7
+    # Pixel centres: x_full = (x + 0.5) / 0.6 - 0.5 (not x / 0.6).
+    np.testing.assert_allclose(c[0], (Fake.q + 0.5) / 0.6 - 0.5, atol=1e-4)
+    np.testing.assert_allclose(r[0], (Fake.q + 1.5) / 0.6 - 0.5, atol=1e-4)
+    c, _, _ = _scaled_detect(fake, np.zeros((480, 640), np.uint8), 1.0)
+    assert fake.shape == (480, 640) and c[0] is Fake.q
+    assert any(w[3] != 1.0 for w in THRESHOLD_WINDOWS)
+    # On a real image: the scaled call's contour lies on the tag at full-image pixels.
+    image, left, _ = _two_tags_apart()
+    params = TagDetector.default_parameters()
+    params.adaptiveThreshWinSizeMin, params.adaptiveThreshWinSizeMax = 11, 19
+    aruco = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(
+        cv2.aruco.DICT_4X4_50), params)
+    c, i, _ = _scaled_detect(aruco, image, 0.6)
+    k = list(i.ravel()).index(3)
+    assert np.abs(c[k].reshape(4, 2) - left).max() < 1.5
+
+
+def test_rejected_contours_that_do_not_look_like_markers_are_not_refined(detector):
+    # A real marker's quad and a uniformly dark square's, both as rejected contours:
+    # the screen keeps the marker only; without it both are candidates.
+    image, left, right = _two_tags_apart()
+    cv2.fillConvexPoly(image, np.round(right).astype(np.int32), 30)
+    rejected = [left.reshape(1, 4, 2).astype(np.float32),
+                right.reshape(1, 4, 2).astype(np.float32)]
+    kept = detector._candidates(image, rejected, np.zeros((0, 4, 2)))
+    assert len(kept) == 1 and np.allclose(kept[0].mean(axis=0), left.mean(axis=0))
+    detector.screen_candidates = False
+    try:
+        assert len(detector._candidates(image, rejected, np.zeros((0, 4, 2)))) == 2
+    finally:
+        detector.screen_candidates = True
+
+
+def test_the_same_contour_from_several_windows_is_refined_once(detector):
+    import abp_perception.detector as dm
+    image, left, right = _two_tags_apart()
+    centre = left.mean(axis=0)
+    copies = [centre + 0.96 * (left - centre), right, left + 0.7, left]
+    rejected = [q.reshape(1, 4, 2).astype(np.float32) for q in copies]
+    kept = detector._candidates(image, rejected, np.zeros((0, 4, 2)))
+    assert len(kept) == 2
+    # The largest of the duplicates (not the first given), and the other tag.
+    assert np.abs(kept - left).max(axis=(1, 2)).min() < 0.71
+    assert np.abs(kept - right).max(axis=(1, 2)).min() < 1e-4
+    old = dm.CANDIDATE_DUPLICATE
+    dm.CANDIDATE_DUPLICATE = 0.0
+    try:
+        assert len(detector._candidates(image, rejected, np.zeros((0, 4, 2)))) == 4
+    finally:
+        dm.CANDIDATE_DUPLICATE = old

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from tag_scene import render_tags, tag_pose
 
-from abp_perception.face_search import adjacent_face_boxes, blur_tolerant_parameters
+from abp_perception.face_search import adjacent_face_boxes
 
 CUBE, MARKER = 0.10, 0.08
 
@@ -68,14 +68,20 @@ def test_found_faces_and_faces_turned_away_get_no_box(camera):
                                shape).shape == (0, 5)
 
 
-def test_blur_tolerant_parameters_loosen_the_polygon_fit_only():
-    from abp_perception.detector import TagDetector
-    base = TagDetector.default_parameters()
-    loose = blur_tolerant_parameters(base)
-    assert loose.polygonalApproxAccuracyRate > base.polygonalApproxAccuracyRate
-    assert loose.perspectiveRemovePixelPerCell == base.perspectiveRemovePixelPerCell
-    assert loose.minMarkerDistanceRate == base.minMarkerDistanceRate
-    assert base.polygonalApproxAccuracyRate == pytest.approx(0.03)   # base not changed
+def test_with_quads_gives_the_neighbour_marker_corners(camera):
+    (_, front), (_, top) = _cube_tags()
+    shape = (camera.height, camera.width)
+    boxes, quads = adjacent_face_boxes(front[None], np.zeros((0, 3)), camera.K, None, CUBE,
+                                       MARKER, shape, with_quads=True)
+    assert boxes.shape == (1, 5) and quads.shape == (1, 4, 2)
+    half = 0.5 * MARKER
+    corners = np.array([[-half, half, 0], [half, half, 0], [half, -half, 0],
+                        [-half, -half, 0]])
+    px, _ = cv2.projectPoints(corners, cv2.Rodrigues(top[:3, :3])[0], top[:3, 3],
+                              camera.K, None)
+    # The same four corners (in some order and winding).
+    d = np.linalg.norm(quads[0][:, None] - px.reshape(4, 2)[None], axis=2)
+    assert d.min(axis=1).max() < 1e-6
 
 
 def _side_px(camera, pose):
@@ -96,7 +102,8 @@ def _detections(camera, image, min_side_px, face_search):
     if min_side_px:
         params = TagDetector.default_parameters()
         params.minMarkerPerimeterRate = 4.0 * min_side_px / max(camera.width, camera.height)
-        detector.aruco.setDetectorParameters(params)
+        for aruco in detector.arucos:
+            aruco.setDetectorParameters(params)
     result = detector.detect(image)
     return sorted(d.tag_id for d in result.detections), result
 

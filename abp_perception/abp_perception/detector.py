@@ -630,8 +630,9 @@ class TagDetector:
 
     @staticmethod
     def default_parameters(refine_corners: bool = True) -> "cv2.aruco.DetectorParameters":
-        """ArUco parameters: defaults except for finer bit sampling of small, blurred tags,
-        one more threshold window (13 px kept) and less candidate grouping (below).
+        """ArUco parameters: defaults except for finer bit sampling of small, blurred tags
+        and less candidate grouping (below). The base of every detectMarkers call:
+        `window_parameters` sets each call's threshold windows (THRESHOLD_WINDOWS).
 
         Corner refinement is our own edge fit (refine_corners) or SUBPIX without it.
         """
@@ -640,11 +641,8 @@ class TagDetector:
                                     else cv2.aruco.CORNER_REFINE_SUBPIX)
         p.perspectiveRemovePixelPerCell = 8
         p.perspectiveRemoveIgnoredMarginPerCell = 0.3
-        # Threshold windows 3, 13, 23, 33 px (default 3, 13, 23; one pass more). 3 px finds
-        # small, far tags on texture; 13 px large near tags whose border the wider
-        # windows merge with dark texture or shade (without it 42 tags OpenCV finds on the
-        # realistic suite were lost); 33 px dim, shaded, oblique faces (docs/BENCHMARKS.md,
-        # issue 16).
+        # Threshold windows of one call over 3-33 px (default 3, 13, 23) for callers that
+        # use these parameters alone; `detect` replaces them per call (THRESHOLD_WINDOWS).
         p.adaptiveThreshWinSizeMin = 3
         p.adaptiveThreshWinSizeMax = 33
         p.adaptiveThreshWinSizeStep = 10

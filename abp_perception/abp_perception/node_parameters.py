@@ -41,8 +41,8 @@ DETECTOR_SPECS = (
     ParamSpec('refine_corners', BOOL, True, 'Edge-fit sub-pixel corners (else OpenCV SUBPIX).'),
     ParamSpec('second_pass', BOOL, True, 'Decode candidates that ArUco rejected, after '
               'refining.'),
-    ParamSpec('face_search', BOOL, True, 'Search the cube faces next to found tags again '
-              'for blurred tags (needs cube_size > 0; detector.TagDetector).'),
+    ParamSpec('face_search', BOOL, True, 'Decode the tags predicted on the cube faces next '
+              'to found tags, also when blurred (needs cube_size > 0; detector.TagDetector).'),
     ParamSpec('full_frame_every', INT, 5, 'Search the whole image every this many frames '
               '(and after a frame without tags); in between only around the last tags '
               '(detector.RegionSearch). 1 = always the whole image.', (1, 10000)),

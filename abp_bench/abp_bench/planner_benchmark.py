@@ -490,7 +490,8 @@ def main(argv=None) -> int:
           f"alpha {args.alpha}, stop {args.stop}, target error {args.target_error:g}"
           f"{' with fault margin' if args.fault_margin else ''}, "
           f"planning budget {args.planning_budget_s} s"
-          f"{'; refused ' + ' '.join(args.refuse) if args.refuse else ''}; tables: belief "
+          f"{'; refused ' + ' '.join(args.refuse) if args.refuse else ''}"
+          f"{'; true objects: ' + args.family + ' only' if args.family else ''}; tables: belief "
           f"{args.belief_models or 'hand-written ' + args.tables}, world "
           f"{args.world_models or 'same'})")
     by_family = family_table(results, args.models, args.planners, args.seed)

@@ -117,10 +117,11 @@ def test_results_split_by_object_family_on_the_robot_set(tmp_path, capsys):
     assert planner_benchmark.family_table({('30', 'abp'): trials}, ['30'], ['abp'], 0) is None
 
 
-def test_family_draws_the_true_object_from_that_family_only(tmp_path):
+def test_family_draws_the_true_object_from_that_family_only(tmp_path, capsys):
     families = planner_benchmark.object_families(population.robot_set(seed=0))
     trials = _run(tmp_path, '--family', 'twin family, uniform')
     assert {families[t['true_model']] for t in trials} == {'twin family, uniform'}
+    assert 'true objects: twin family, uniform only' in capsys.readouterr().out
     # Both uniform cubes with twins are drawn, not one fixed model.
     assert len({t['true_model'] for t in _run(tmp_path, '--trials', '12', '--family',
                                                  'twin family, uniform')}) == 2

@@ -807,11 +807,11 @@ class TagDetector:
         # One quad per place (the same face predicted from several tags or poses): the
         # darkest against its quiet zone, i.e. the best aligned with the marker.
         keep = keep[np.argsort(-dark[keep], kind='stable')]
-        centres = quads[:, :, :].mean(axis=1)
+        centres = quads.mean(axis=1)
+        sides = np.sqrt(np.abs(quad_areas(quads)))
         chosen = []
         for k in keep:
-            if all(np.linalg.norm(centres[k] - centres[j]) > 0.3 * np.sqrt(
-                    abs(quad_areas(quads[j:j + 1])[0])) for j in chosen):
+            if all(np.linalg.norm(centres[k] - centres[j]) > 0.3 * sides[j] for j in chosen):
                 chosen.append(k)
         if not chosen:
             return []

@@ -18,6 +18,7 @@ import sys
 import time
 
 import rclpy
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException
 from rclpy.utilities import remove_ros_args
 
@@ -36,7 +37,9 @@ def parse_args(argv):
     timing.add_argument('--fast', action='store_true', help='as fast as possible')
     parser.add_argument('--wait-for', nargs='*', default=[], metavar='TOPIC',
                         help='wait until these topics have a subscriber')
-    parser.add_argument('--wait-timeout', type=float, default=30.0)
+    parser.add_argument('--wait-timeout', type=float, default=30.0,
+                        help='seconds to wait for subscribers (--wait-for) and, at the end, '
+                        'for the reliable subscribers to acknowledge every message')
     parser.add_argument('--gap', type=float, default=0.002,
                         help='seconds between messages with --fast (lets DDS deliver in order)')
     args = parser.parse_args(argv)
@@ -94,8 +97,15 @@ def main(argv=None):
                 time.sleep(0.05)
         count = play(publishers, read_bag(args.bag, list(topics)), args.rate, args.fast,
                      args.gap)
-        time.sleep(0.5)  # let reliable DDS deliver the tail before the node goes away
+        # A reliable writer destroyed before its readers acknowledged would lose the tail.
+        unacked = [topic for topic, publisher in publishers.items()
+                   if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout))]
         print(f'[bag_player] replayed {count} messages from {args.bag}')
+        if unacked:
+            print(f'[bag_player] not acknowledged within {args.wait_timeout} s on '
+                  f"{', '.join(unacked)}: the last messages may not have been taken",
+                  file=sys.stderr)
+            return 1
         return 0
     except BagError as error:
         print(f'[bag_player] {error}', file=sys.stderr)

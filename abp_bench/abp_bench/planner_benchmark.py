@@ -90,8 +90,8 @@ def _worker_trial(task):
                                options.get('belief_models'))
         # The world: the same models and observation model, its own transition tables.
         world = with_model_tables(ms, options.get('world_models'))
-        _WORKER[key] = (ms, BeliefFilter(ms), {}, world)
-    ms, bf, rules, world = _WORKER[key]
+        _WORKER[key] = (ms, BeliefFilter(ms), {}, world, np.array(object_families(ms)))
+    ms, bf, rules, world, families = _WORKER[key]
     rule_key = (options.get('stop', 'error'), options.get('target_error', DEFAULT_TARGET_ERROR),
                 options.get('stop_posterior', STOP_POSTERIOR),
                 options.get('max_actions', MAX_ACTIONS), options.get('fault_margin', False))
@@ -107,9 +107,7 @@ def _worker_trial(task):
     planner = make_planner(planner_name, ms, seed=seed * 1_000_003 + trial, **options)
     refused = frozenset(options.get('refuse') or ())
     family = options.get('family')
-    true_models = None
-    if family:
-        true_models = np.flatnonzero(np.array(object_families(ms)) == family)
+    true_models = np.flatnonzero(families == family) if family else None
     result = run_trial(
         world,  # outcomes and observations of the true object; planner and filter use ms
         planner,

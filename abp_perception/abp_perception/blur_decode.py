@@ -34,8 +34,9 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-__all__ = ['decode_blurred', 'blur_kernels', 'code_matrix', 'darkness', 'marker_contrast',
-           'square_homographies']
+from .corners import square_homographies
+
+__all__ = ['decode_blurred', 'blur_kernels', 'code_matrix', 'darkness', 'marker_contrast']
 
 # Canonical sample grid (marker spans [0, cells]); a little of the quiet zone included.
 _SAMPLES_PER_AXIS = 14
@@ -133,29 +134,6 @@ def _screen_points(cells: int):
     return pts, inner.shape[0], border
 
 
-def square_homographies(quads, cells: int) -> np.ndarray:
-    """(Q, 3, 3) homographies from the canonical square [0, cells]^2 (corners (0, 0),
-    (cells, 0), (cells, cells), (0, cells)) to each quad (Q, 4, 2), in one batched solve
-    (cv2.getPerspectiveTransform's system). Degenerate quads give non-finite rows."""
-    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
-    src = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float64)
-    n = q.shape[0]
-    a = np.zeros((n, 8, 8))
-    x, y = src[:, 0], src[:, 1]
-    u, v = q[..., 0], q[..., 1]
-    a[:, 0::2, 0], a[:, 0::2, 1], a[:, 0::2, 2] = x, y, 1.0
-    a[:, 1::2, 3], a[:, 1::2, 4], a[:, 1::2, 5] = x, y, 1.0
-    a[:, 0::2, 6], a[:, 0::2, 7] = -x * u, -y * u
-    a[:, 1::2, 6], a[:, 1::2, 7] = -x * v, -y * v
-    b = q.reshape(n, 8)
-    h = np.full((n, 9), np.nan)
-    ok = np.abs(np.linalg.det(a)) > 1e-12
-    if ok.any():
-        h[ok, :8] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
-        h[ok, 8] = 1.0
-    return h.reshape(n, 3, 3)
-
-
 def _cell_samples(gray, quads, cells: int) -> np.ndarray:
     """(Q, cells^2 + 4 cells) grey values at ``_screen_points`` of each quad."""
     pts, _, _ = _screen_points(cells)
@@ -168,17 +146,6 @@ def _cell_samples(gray, quads, cells: int) -> np.ndarray:
                      borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
 
 
-def _quantiles(values, qs):
-    """np.percentile(values, 100 * qs, axis=1) (linear interpolation) of a (Q, N) array,
-    one sort instead of np.percentile's per-call overhead; (len(qs), Q)."""
-    v = np.sort(values, axis=1)
-    pos = np.asarray(qs, dtype=np.float64) * (v.shape[1] - 1)
-    lo = np.floor(pos).astype(int)
-    hi = np.minimum(lo + 1, v.shape[1] - 1)
-    frac = pos - lo
-    return (v[:, lo] * (1.0 - frac) + v[:, hi] * frac).T
-
-
 def darkness(gray, quads, cells: int) -> np.ndarray:
     """(Q,) lower quartile of the quiet-zone ring minus the mean inside, grey levels."""
     q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
@@ -186,7 +153,7 @@ def darkness(gray, quads, cells: int) -> np.ndarray:
         return np.zeros(0)
     v = _cell_samples(gray, q, cells)
     n_in = cells * cells
-    return _quantiles(v[:, n_in:], [0.25])[0] - v[:, :n_in].mean(axis=1)
+    return np.quantile(v[:, n_in:], 0.25, axis=1) - v[:, :n_in].mean(axis=1)
 
 
 def marker_contrast(gray, quads, cells: int):
@@ -201,9 +168,9 @@ def marker_contrast(gray, quads, cells: int):
     _, n_in, border = _screen_points(cells)
     v = _cell_samples(gray, q, cells)
     inner = v[:, :n_in]
-    ring = _quantiles(v[:, n_in:], [0.25])[0]
-    frame = ring - _quantiles(inner[:, border], [0.5])[0]
-    bits = _quantiles(inner[:, ~border], [0.9, 0.1])
+    ring = np.quantile(v[:, n_in:], 0.25, axis=1)
+    frame = ring - np.median(inner[:, border], axis=1)
+    bits = np.quantile(inner[:, ~border], [0.9, 0.1], axis=1)
     return frame, bits[0] - bits[1]
 
 
@@ -221,15 +188,13 @@ def decode_blurred(gray, quads, dictionary, min_corr=MIN_CORR, margin=MARGIN,
     kernels = blur_kernels() if kernels is None else kernels
     g = np.linspace(-_SAMPLE_PAD, cells + _SAMPLE_PAD, _SAMPLES_PER_AXIS)
     canon = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
-    square = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float32)
     img = gray.astype(np.float32) if gray.dtype != np.float32 else gray
     dark = darkness(gray, q, cells) if min_darkness is not None else np.zeros(q.shape[0])
     out = []
-    for quad, dk in zip(q, dark):
-        if min_darkness is not None and not dk >= min_darkness:
+    for h, dk in zip(square_homographies(q, cells), dark):
+        if (min_darkness is not None and not dk >= min_darkness) or not np.isfinite(h).all():
             out.append(None)
             continue
-        h = cv2.getPerspectiveTransform(square, quad.astype(np.float32))
         try:
             h_inv = np.linalg.inv(h)
         except np.linalg.LinAlgError:

@@ -31,7 +31,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'code_table']
+__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'code_table', 'square_homographies']
 
 # Edge-profile sampling: fractions of each edge, samples across it (wide first pass to
 # recover contour corners that are several pixels off, then a narrow pass).
@@ -249,6 +249,29 @@ def code_table(dictionary) -> dict:
     return table
 
 
+def square_homographies(quads, cells: int) -> np.ndarray:
+    """(Q, 3, 3) homographies from the canonical square [0, cells]^2 (corners (0, 0),
+    (cells, 0), (cells, cells), (0, cells)) to each quad (Q, 4, 2), in one batched solve
+    (cv2.getPerspectiveTransform's system). Degenerate quads give non-finite rows."""
+    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
+    src = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float64)
+    n = q.shape[0]
+    a = np.zeros((n, 8, 8))
+    x, y = src[:, 0], src[:, 1]
+    u, v = q[..., 0], q[..., 1]
+    a[:, 0::2, 0], a[:, 0::2, 1], a[:, 0::2, 2] = x, y, 1.0
+    a[:, 1::2, 3], a[:, 1::2, 4], a[:, 1::2, 5] = x, y, 1.0
+    a[:, 0::2, 6], a[:, 0::2, 7] = -x * u, -y * u
+    a[:, 1::2, 6], a[:, 1::2, 7] = -x * v, -y * v
+    b = q.reshape(n, 8)
+    h = np.full((n, 9), np.nan)
+    ok = np.abs(np.linalg.det(a)) > 1e-12
+    if ok.any():
+        h[ok, :8] = np.linalg.solve(a[ok], b[ok][..., None])[..., 0]
+        h[ok, 8] = 1.0
+    return h.reshape(n, 3, 3)
+
+
 def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_errors: int = 2,
                  min_contrast: float = 15.0):
     """Identify quads (Q, 4, 2) in `dictionary`; per quad (id, rotation) or None.
@@ -268,9 +291,7 @@ def decode_quads(gray, quads, dictionary, border_bits: int = 1, max_border_error
     size = int(dictionary.markerSize)
     cells = size + 2 * int(border_bits)
     pts, n_s, per_cell = _grid_points(cells)
-    canonical = np.array([[0, 0], [cells, 0], [cells, cells], [0, cells]], dtype=np.float32)
-    homog = np.array([cv2.getPerspectiveTransform(canonical, quad.astype(np.float32))
-                      for quad in q])
+    homog = square_homographies(q, cells)
     proj = pts @ homog.transpose(0, 2, 1)                                   # (Q, P, 3)
     with np.errstate(divide='ignore', invalid='ignore'):
         xy = (proj[..., :2] / proj[..., 2:3]).astype(np.float32)

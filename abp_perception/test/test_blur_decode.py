@@ -89,7 +89,7 @@ def test_no_marker_no_decode():
 
 
 def test_square_homographies_match_opencv_and_flag_degenerate_quads():
-    from abp_perception.blur_decode import square_homographies
+    from abp_perception.corners import square_homographies
     rng = np.random.default_rng(3)
     square = np.float32([[0, 0], [6, 0], [6, 6], [0, 6]])
     quads = np.array([[[10, 12], [50, 8], [55, 60], [5, 49]],
@@ -101,13 +101,6 @@ def test_square_homographies_match_opencv_and_flag_degenerate_quads():
             h[k], cv2.getPerspectiveTransform(square, quad.astype(np.float32)), rtol=1e-5,
             atol=1e-5)
     assert not np.isfinite(h[2]).any()
-
-
-def test_quantiles_are_numpy_percentiles():
-    from abp_perception.blur_decode import _quantiles
-    v = np.random.default_rng(4).normal(size=(5, 24))
-    np.testing.assert_allclose(_quantiles(v, [0.1, 0.25, 0.5, 0.9]),
-                               np.percentile(v, [10, 25, 50, 90], axis=1))
 
 
 def test_marker_contrast_tells_markers_from_dark_blobs_and_plain_texture():

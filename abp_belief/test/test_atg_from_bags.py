@@ -1,6 +1,6 @@
 """ATG experience from recorded episodes of a known object (issue 13, item 2): states
 inferred from aspect observations, checked against the recorded ground truth (committed
-bags, rules world) and on synthetic episodes whose transitions are known."""
+bags, rules world and MuJoCo world) and on synthetic episodes whose transitions are known."""
 
 import json
 import pathlib
@@ -20,6 +20,9 @@ BAGS = pathlib.Path(__file__).resolve().parents[2] / 'bags'
 LABELS = {'robot-seed1-twin-m+z': 'c0-3-2-4-6-5/m+z', 'robot-seed1-twin-m+y':
           'c0-3-2-4-6-5/m+y', 'robot-seed1-uniform': 'c0-4-1-2-3-6/u'}
 HAVE_BAGS = all((BAGS / b / 'metadata.yaml').exists() for b in LABELS)
+# bags/README.md: an episode recorded in the MuJoCo world, robot set with seed 0.
+MUJOCO_BAG = BAGS / 'mujoco' / 'robot-seed0-twin-m-x'
+MUJOCO_LABEL = 'c0-5-1-2-4-6/m-x'
 needs_bags = pytest.mark.skipif(not HAVE_BAGS, reason='committed bags/ not present')
 PUSH, LIFT, FLIP = (ACTIONS.index(a) for a in ('PUSH', 'LIFT', 'FLIP'))
 
@@ -235,6 +238,25 @@ def test_bags_counts_equal_the_ground_truth_counts(bag_inferences):
 
 
 @needs_bags
+def test_mujoco_bag_inferred_transitions_are_the_physics_ground_truth():
+    """In the MuJoCo world the outcomes come from physics, not from the tables the
+    inference uses: every action's inferred (before, after) pair is still the pair the
+    simulator's ground truth recorded, and the learned counts are those pairs."""
+    pytest.importorskip('rosbags')
+    if not (MUJOCO_BAG / 'metadata.yaml').exists():
+        pytest.skip('committed bags/mujoco not present')
+    experience, (inference,) = B.experience_from_bags([(str(MUJOCO_BAG), MUJOCO_LABEL)],
+                                                      population.robot_set(seed=0))
+    assert inference.episode.truth_object == MUJOCO_LABEL
+    truth = B.truth_agreement([inference])
+    assert truth['actions'] == 6 and truth['map_pair'] == 1.0
+    assert truth['min_mass_on_true_pair'] > 0.99
+    assert {ACTIONS[a] for a in inference.action} >= {'PUSH', 'LIFT', 'FLIP'}
+    true_pairs = inference.episode.true_transitions()[inference.counted]
+    np.testing.assert_array_equal(inference.map_transitions(), true_pairs)
+    assert experience.weight.sum() == pytest.approx(inference.counted.sum())
+
+
 def test_learn_atg_cli_with_bags(tmp_path, capsys):
     pytest.importorskip('rosbags')
     labels = tmp_path / 'labels.yaml'

@@ -11,7 +11,8 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         # The robot set's ATGs learned from the MuJoCo outcome survey (docs/BENCHMARKS.md).
         ('share/' + PACKAGE + '/models', ['models/learned_robot_mujoco.npz',
-                                          'models/learned_robot_mujoco_70trials.npz']),
+                                          'models/learned_robot_mujoco_70trials.npz',
+                                          'models/learned_robot_from_bags.npz']),
     ],
     install_requires=['setuptools'],
     zip_safe=True,

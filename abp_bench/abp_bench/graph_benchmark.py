@@ -274,15 +274,17 @@ def verdict(result):
     planner stopped without an identification, and said why) | hung."""
     if result['hung']:
         return 'hung'
-    if result['correct']:
-        return 'correct'
-    return 'WRONG' if result.get('success') else 'not identified'
+    # An aborted goal still reports its most likely object; that is no identification.
+    if not result.get('success'):
+        return 'not identified'
+    return 'correct' if result['correct'] else 'WRONG'
 
 
 def summarise(results, latencies, observation_latencies, args):
     n = len(results)
-    correct = sum(r['correct'] for r in results)
     verdicts = [verdict(r) for r in results]
+    correct = verdicts.count('correct')
+    likely_right = sum(v == 'not identified' and r['correct'] for v, r in zip(verdicts, results))
     done = [r for r in results if 'actions' in r]
     lat = np.array(latencies) if latencies else np.array([np.nan])
     obs = np.array(observation_latencies) if observation_latencies else np.array([np.nan])
@@ -290,7 +292,9 @@ def summarise(results, latencies, observation_latencies, args):
         ('episodes', f'{n}'),
         ('correct', f'{correct}/{n} ({100.0 * correct / n:.1f} %)'),
         ('wrong (succeeded on the wrong object)', f"{verdicts.count('WRONG')}"),
-        ('not identified (aborted with a reason)', f"{verdicts.count('not identified')}"),
+        ('not identified (aborted with a reason)',
+         f"{verdicts.count('not identified')}"
+         + (f' ({likely_right} with the right most likely object)' if likely_right else '')),
         ('hung (no result within the timeout)', f"{verdicts.count('hung')}"),
         ('mean actions', f"{statistics.mean(r['actions'] for r in done):.2f}" if done else '-'),
         ('mean sim time per episode (s)',
@@ -365,7 +369,7 @@ def main(argv=None):
                       indent=2)
     if interrupted:
         return 130
-    return 0 if all(r['correct'] for r in results) else 1
+    return 0 if all(verdict(r) == 'correct' for r in results) else 1
 
 
 if __name__ == '__main__':

@@ -123,13 +123,17 @@ def test_graph_benchmark_summary_table():
                     wall_s=12.0),
                dict(correct=False, success=False, hung=False, actions=6, elapsed_s=80.0,
                     wall_s=15.0),
-               dict(correct=False, hung=True, wall_s=30.0)]
+               dict(correct=False, hung=True, wall_s=30.0),
+               # Aborted at the action limit with the right most likely object.
+               dict(correct=True, success=False, hung=False, actions=30, elapsed_s=300.0,
+                    wall_s=90.0)]
     table = graph_benchmark.summarise(results, [12.0, 14.0], [5.0], args)
-    assert '| correct | 1/4 (25.0 %) |' in table
+    assert '| correct | 1/5 (20.0 %) |' in table
     assert '| wrong (succeeded on the wrong object) | 1 |' in table
-    assert '| not identified (aborted with a reason) | 1 |' in table
+    assert ('| not identified (aborted with a reason) | 2 (1 with the right most likely '
+            'object) |') in table
     assert '| hung (no result within the timeout) | 1 |' in table
-    assert '| mean actions | 4.00 |' in table
+    assert '| mean actions | 10.50 |' in table
     assert ('mujoco world, robot models (corrected tables), planner cost, without fault '
             'injection') in table
     # The rules world's tables are the paper's, unless --tables says otherwise.

@@ -49,7 +49,12 @@ import time
 import cv2
 import numpy as np
 
-from abp_perception.detector import TagDetector, marker_object_points, search_region
+from abp_perception.detector import (
+    RegionSearch,
+    TagDetector,
+    marker_object_points,
+    search_region,
+)
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
 from .perception_benchmark import random_scene, rotation_deg
@@ -358,11 +363,37 @@ def unhidden_aspect_tags(scene, hidden):
                if t.on_cube and t.tag_id in slots and t.in_image and not h)
 
 
+# A still robot's head camera between two frames: a small image motion (ego-motion,
+# vibration), bounds of the tracking benchmark below.
+MOVE_SHIFT_PX = 2.0
+MOVE_ROTATION_DEG = 0.3
+
+
+def moved_frame(gray, rng, shift_px=MOVE_SHIFT_PX, rotation_deg=MOVE_ROTATION_DEG):
+    """`gray` moved in the image by a random shift (up to `shift_px` each axis) and rotation
+    (up to `rotation_deg`) about its centre, bilinear; returns (moved, 2 x 3 affine map
+    from `gray`'s pixels to the moved one's)."""
+    h, w = gray.shape
+    a = cv2.getRotationMatrix2D(((w - 1) / 2.0, (h - 1) / 2.0),
+                                float(rng.uniform(-rotation_deg, rotation_deg)), 1.0)
+    a[:, 2] += rng.uniform(-shift_px, shift_px, size=2)
+    return cv2.warpAffine(gray, a, (w, h), flags=cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE), a
+
+
+def unmoved(corners, affine):
+    """Corners (4, 2) found in a ``moved_frame`` mapped back to the original frame."""
+    back = cv2.invertAffineTransform(affine)
+    return np.asarray(corners, dtype=np.float64) @ back[:, :2].T + back[:, 2]
+
+
 def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
     ours = TagDetector(gen.K)
     plain = PlainOpenCV(gen.K, ours.marker_size)
     matcher = AspectMatcher(models)
     degrader = Degrader(gen.width, gen.height, seed=seed + 16)
+    motion = np.random.default_rng(seed + 32)    # apart, so the scenes stay as they were
+    search = RegionSearch(full_frame_every=5)
     rows, frames_out = [], []
     for condition in conditions:
         for _ in range(frames):
@@ -384,6 +415,14 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
                 t0 = time.thread_time()
                 in_region = ours.detect(gray, roi=region)
                 cpu_region = time.thread_time() - t0
+            # The next frame of RegionSearch (full_frame_every 5) after this full-frame
+            # pass, the camera moved a little: the tags tracked, or the region searched.
+            search.reset()
+            search.detect(ours, gray)
+            moved, affine = moved_frame(gray, motion)
+            t0 = time.thread_time()
+            next_frame = search.detect(ours, moved)
+            cpu_next = time.thread_time() - t0
             world = result.in_frame(scene.camera_pose, 'base_link')
             a, wrong_a = score(scene, [(d.tag_id, d.corners, d.pose, d.single_tag_pose)
                                        for d in world.detections], hidden)
@@ -391,11 +430,14 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
                                         None) for i, c, p in theirs], hidden)
             c, _ = score(scene, [(d.tag_id, d.corners, None, None)
                                  for d in in_region.detections], hidden)
-            for (ra, rb, rc) in zip(a, b, c):
+            n, _ = score(scene, [(d.tag_id, unmoved(d.corners, affine), None, None)
+                                 for d in next_frame.detections], hidden)
+            for (ra, rb, rc, rn) in zip(a, b, c, n):
                 rows.append({'condition': condition, 'distance': ra[0], 'angle': ra[1],
                              'ours': ra[2], 'cv': rb[2], 'pos_ours': ra[3], 'pos_cv': rb[3],
                              'rot_ours': ra[4], 'rot_single': ra[5], 'rot_cv': rb[4],
-                             'multi': ra[6], 'multi_cv': rb[6], 'region': rc[2]})
+                             'multi': ra[6], 'multi_cv': rb[6], 'region': rc[2],
+                             'next': rn[2]})
             # The aspect matcher on our detections, as the graph runs it (issue 16 goal).
             best = matcher.match(features_from_detections(world.detections)).best
             verdict = aspect_verdict(None if best is None else best.key, scene.aspect)
@@ -406,6 +448,7 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
                                'cpu_cv': cpu_cv, 'wrong_ours': wrong_a, 'wrong_cv': wrong_b,
                                'det_ours': len(result.detections), 'det_cv': len(theirs),
                                'cpu_region': cpu_region, 'image_px': gray.size,
+                               'cpu_next': cpu_next, 'next_tracked': next_frame.tracked > 0,
                                'region_px': 0 if region is None else sum(
                                    (x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in region)})
     return rows, frames_out
@@ -509,6 +552,25 @@ def region_table(rows, frames, full_frame_every=5):
     return '\n'.join(out)
 
 
+def tracking_table(rows, frames, full_frame_every=5):
+    """CPU and recall of RegionSearch's frames between full-frame passes (tracking, or the
+    region searched where a tag was lost), on the moved frame, against the full frame."""
+    out = ['| condition | next frames tracked (every tag found again) | recall full frame / '
+           'next frame | CPU median full frame / next frame / OpenCV (ms) | '
+           f'RegionSearch(full_frame_every={full_frame_every}) per frame: median, mean (ms), '
+           'mean ratio to OpenCV |', '|---|---|---|---|---|']
+    for cond, sel, fr in _by_condition(rows, frames):
+        full, nxt, cv = (1e3 * np.array([f[k] for f in fr])
+                         for k in ('cpu_ours', 'cpu_next', 'cpu_cv'))
+        seq = np.concatenate([full, np.repeat(nxt, full_frame_every - 1)])
+        tracked = sum(f['next_tracked'] for f in fr)
+        out.append(f"| {cond} | {tracked} of {len(fr)} | {_pct(sel, 'ours')} / "
+                   f"{_pct(sel, 'next')} | {np.median(full):.2f} / {np.median(nxt):.2f} / "
+                   f'{np.median(cv):.2f} | {np.median(seq):.2f}, {seq.mean():.2f}, '
+                   f'{seq.mean() / cv.mean():.2f} |')
+    return '\n'.join(out)
+
+
 def aspect_table(frames, max_distance=1.5):
     """Aspect verdicts per condition over the frames with the cube within `max_distance`.
 
@@ -589,6 +651,14 @@ def section(rows, frames, command, per_condition):
         "frames of (full + 4 region) / 5 is the cost at `full_frame_every` 5 (the node's "
         'default).', '',
         region_table(rows, frames),
+        '', '### Between full-frame passes: tracking on a moving camera', '',
+        'The frame after each full-frame pass as `RegionSearch` (`full_frame_every` 5, '
+        '`track` on) gets it, moved in the image by up to '
+        f'{MOVE_SHIFT_PX:g} px and {MOVE_ROTATION_DEG:g}° (`moved_frame`): the last '
+        "frame's tags found again where they were (`TagDetector.track`, no ArUco pass), "
+        'or, where one is lost, ArUco in `search_region`. The per-frame figures of '
+        '`RegionSearch` count 1 full frame and 4 such frames.', '',
+        tracking_table(rows, frames),
     ]
     lines += ['', '### Aspect top-1 (the aspect matcher on our detections)', '',
               "Top-1: the matcher's best hypothesis is the rendered state's aspect (type "

@@ -51,8 +51,21 @@ def test_suite_runs_and_reports_every_condition_against_opencv(capsys):
         assert f'| {cond} |' in out
     for heading in ('### By condition', '### By distance', '### By viewing angle',
                     '### Rotation error of tags on cubes', '### Region search',
-                    '### Aspect top-1'):
+                    '### Aspect top-1', '### Between full-frame passes'):
         assert heading in out
+
+
+def test_moved_frame_corners_map_back_to_the_original_frame():
+    rng = np.random.default_rng(0)
+    gray = np.zeros((480, 640), np.uint8)
+    gray[200:260, 300:360] = 255
+    moved, affine = realistic_suite.moved_frame(gray, rng)
+    square = np.array([[299.5, 199.5], [359.5, 199.5], [359.5, 259.5], [299.5, 259.5]])
+    there = square @ affine[:, :2].T + affine[:, 2]
+    assert 0.1 < np.abs(there - square).max() < 2.0 + 320 * np.radians(0.3) + 1e-9
+    np.testing.assert_allclose(realistic_suite.unmoved(there, affine), square, atol=1e-9)
+    inside = np.round(there.mean(axis=0)).astype(int)
+    assert moved[inside[1], inside[0]] == 255
 
 
 def test_update_doc_keeps_the_two_perception_sections_apart(tmp_path):

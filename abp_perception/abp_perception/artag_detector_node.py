@@ -82,7 +82,8 @@ class ArtagDetectorNode(ManagedNode):
                              f'{self.kinematics.urdf_path}')
         self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
-        self.search = RegionSearch(self._values['full_frame_every'])
+        self.search = RegionSearch(self._values['full_frame_every'],
+                                   track=self._values['track_tags'])
         self._camera_key = None
         self._joints = None
         self.health = NodeHealth(self)
@@ -118,6 +119,9 @@ class ArtagDetectorNode(ManagedNode):
         every = [int(p.value) for p in params if p.name == 'full_frame_every']
         if every and every[-1] < 1:
             return SetParametersResult(successful=False, reason='full_frame_every must be >= 1')
+        track = [bool(p.value) for p in params if p.name == 'track_tags']
+        if track:
+            self.search.track = track[-1]
         changes = {p.name: p.value for p in params if p.name in DETECTOR_PARAMETERS}
         if not changes:
             if every:

@@ -412,12 +412,13 @@ class DetectionResult:
     cubes: list = field(default_factory=list)   # rigid_cube.CubePose, >= 2 tags each
     roi: list = None               # [(x0, y0, x1, y1) px] searched; None: the whole image
     face_search: int = 0           # detections found on the found tags' cube faces
+    tracked: int = 0               # detections found again where they were (TagDetector.track)
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
-        return DetectionResult([d.transformed(transform, frame) for d in self.detections],
-                               list(self.dropped), self.second_pass,
-                               [c.transformed(transform, frame) for c in self.cubes], self.roi,
-                               self.face_search)
+        return replace(self, detections=[d.transformed(transform, frame)
+                                         for d in self.detections],
+                       dropped=list(self.dropped),
+                       cubes=[c.transformed(transform, frame) for c in self.cubes])
 
 
 def _inside_any(points, quads) -> np.ndarray:
@@ -523,17 +524,22 @@ def search_region(detections, shape, margin=1.5, min_margin_px=24.0):
 
 
 class RegionSearch:
-    """Search where the tags were: each frame ArUco looks only at ``search_region`` of
-    the last frame's detections, and at the whole image every `full_frame_every`-th
-    frame (the first one included), after a frame with no detection, and after the
-    detector changed (a new camera). `full_frame_every` 1: always the whole image.
+    """Search where the tags were. Every `full_frame_every`-th frame (the first one
+    included), after a frame with no detection and after the detector changed (a new
+    camera), ArUco searches the whole image. On the frames between, with `track` on,
+    the last frame's tags are first looked for where they were (``TagDetector.track``:
+    no ArUco pass, a fraction of its cost on a still or slowly moving camera); when
+    every one of them is found again that is the frame's result, otherwise (or with
+    `track` off) ArUco searches ``search_region`` of the last frame's detections.
+    `full_frame_every` 1: always the whole image. A tag that comes into view away from
+    the found tags' cubes waits for the next full-frame pass.
 
     >>> search = RegionSearch(full_frame_every=5)
     >>> result = search.detect(detector, gray)     # DetectionResult; result.roi: searched
     """
 
     def __init__(self, full_frame_every: int = 5, margin: float = 1.5,
-                 min_margin_px: float = 24.0):
+                 min_margin_px: float = 24.0, track: bool = True):
         if int(full_frame_every) < 1:
             raise ValueError(f'full_frame_every must be >= 1, got {full_frame_every}')
         if not (np.isfinite(margin) and margin >= 0 and np.isfinite(min_margin_px)
@@ -542,20 +548,33 @@ class RegionSearch:
                              f'{min_margin_px}')
         self.full_frame_every = int(full_frame_every)
         self.margin, self.min_margin_px = float(margin), float(min_margin_px)
+        self.track = bool(track)
         self.reset()
 
     def reset(self):
         """Search the whole image next frame."""
         self._region, self._since_full, self._detector = None, 0, None
+        self._previous, self._gray = [], None
 
     def detect(self, detector, gray) -> DetectionResult:
-        """``detector.detect`` of `gray` in the region (or the whole image) due."""
+        """``detector.detect`` of `gray` in the region (or the whole image) due, or the
+        last frame's tags found again (``detector.track``)."""
         if detector is not self._detector:
             self.reset()
             self._detector = detector
         due = self._region is None or self._since_full >= self.full_frame_every - 1
-        result = detector.detect(gray, roi=None if due else self._region)
+        result = None
+        if not due and self.track and self._previous:
+            tracked, lost = detector.track(gray, self._previous, roi=self._region,
+                                           previous_gray=self._gray)
+            if not lost:
+                result = tracked
+        if result is None:
+            result = detector.detect(gray, roi=None if due else self._region)
         self._since_full = 0 if result.roi is None else self._since_full + 1
+        self._previous = list(result.detections)
+        # A copy: the caller may reuse its image buffer.
+        self._gray = np.array(gray, dtype=np.uint8) if self.track else None
         self._region = search_region(result.detections, np.shape(gray), self.margin,
                                      self.min_margin_px)
         return result
@@ -765,6 +784,75 @@ class TagDetector:
         detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
         return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces))
+
+    def track(self, gray, previous, roi=None, previous_gray=None):
+        """Find the tags of `previous` (the last frame's detections) again where they were,
+        without an ArUco pass: their corners moved by optical flow from `previous_gray`
+        (the last frame, when given: ``cv2.calcOpticalFlowPyrLK``), refined on `gray` by
+        the edge fit and decoded by bits or else by blurred-code correlation; a tag
+        counts as found again only under its own id. Then the face search and the
+        rigid-cube fit, as in ``detect``. Returns (DetectionResult, the ids of `previous`
+        not found again); the result's `roi` is `roi` (what the caller would have
+        searched) and `tracked` counts the tags found again.
+
+        Raises ValueError as ``detect`` does for an image it refuses (`previous_gray`
+        too)."""
+        gray = self.check_image(gray)
+        previous = list(previous)
+        if not previous:
+            return DetectionResult([], [], roi=roi), []
+        ids = [int(d.tag_id) for d in previous]
+        quads = np.array([np.asarray(d.corners, dtype=np.float64).reshape(4, 2)
+                          for d in previous])
+        if previous_gray is not None:
+            quads = self._flow(self.check_image(previous_gray), gray, quads)
+        refined, ok = refine_quads(gray, quads)
+        found = {}
+        for k, res in enumerate(decode_quads(gray, refined, self.dictionary)):
+            if ok[k] and res is not None and res[0] == ids[k]:
+                found[k] = np.roll(refined[k], res[1], axis=0)
+        left = [k for k in range(len(ids)) if k not in found]
+        if self.blur_decode and left:
+            # ArUco order is clockwise on screen, as decode_blurred wants it.
+            for k, res in zip(left, decode_blurred(gray, refined[left], self.dictionary)):
+                if res is not None and res[0] == ids[k]:
+                    found[k] = np.roll(refined[k], res[1], axis=0)
+        detections, dropped = [], []
+        for k in sorted(found):
+            det = self._pose(ids[k], found[k])
+            if isinstance(det, DroppedDetection):
+                dropped.append(det)
+                del found[k]
+            else:
+                detections.append(det)
+        lost = [ids[k] for k in range(len(ids)) if k not in found]
+        tracked = len(detections)
+        # Faces that came into view next to the tags (a cube turned by an action).
+        on_faces = self._search_faces(gray, detections) if self.face_search else []
+        detections += on_faces
+        cubes = self._rigid_cubes(detections) if self.cube_size else []
+        return DetectionResult(detections, dropped, 0, cubes, roi, len(on_faces),
+                               tracked), lost
+
+    @staticmethod
+    def _flow(before, after, quads):
+        """`quads` (Q, 4, 2) of image `before` moved to image `after` by pyramidal
+        Lucas-Kanade flow of their corners; a quad keeps its corners where the flow of
+        one of them failed or moved them apart (by over a third of the quad's side)."""
+        pts = quads.reshape(-1, 1, 2).astype(np.float32)
+        moved, status, _ = cv2.calcOpticalFlowPyrLK(
+            before, after, pts, None, winSize=(15, 15), maxLevel=2,
+            criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+        if moved is None:
+            return quads
+        moved = moved.reshape(-1, 4, 2).astype(np.float64)
+        shift = moved - quads
+        spread = np.linalg.norm(shift - shift.mean(axis=1, keepdims=True), axis=2).max(axis=1)
+        good = status.reshape(-1, 4).all(axis=1) & np.isfinite(moved).all(axis=(1, 2)) \
+            & (spread < np.sqrt(np.abs(quad_areas(quads))) / 3.0)
+        out = quads.copy()
+        out[good] = moved[good]
+        return out
 
     def _search_faces(self, gray, detections):
         """Detections on the cube faces next to found tags that should show a tag and hold

@@ -46,6 +46,10 @@ DETECTOR_SPECS = (
     ParamSpec('full_frame_every', INT, 5, 'Search the whole image every this many frames '
               '(and after a frame without tags); in between only around the last tags '
               '(detector.RegionSearch). 1 = always the whole image.', (1, 10000)),
+    ParamSpec('track_tags', BOOL, True, 'Between full-frame searches, first look for the '
+              "last frame's tags where they were (optical flow, edge fit, decode: no ArUco "
+              'pass); ArUco searches around them only when one is lost '
+              '(detector.RegionSearch).'),
 )
 DETECTOR_PARAMETERS = ('marker_size', 'cube_size', 'corner_sigma_px', 'max_reprojection_error',
                        'min_side_px', 'refine_corners', 'second_pass', 'face_search')

@@ -3,6 +3,8 @@ the covariance model, drops, object points, poses of synthetic tags (tag_scene),
 them the fronto-parallel tag IPPE_SQUARE gets wrong. Detection on rendered ARcube images:
 abp_bench/test."""
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -430,6 +432,87 @@ def test_region_search_looks_everywhere_after_losing_the_tags_or_a_new_detector(
     assert all(always.detect(detector, image).roi is None for _ in range(3))
     with pytest.raises(ValueError, match='full_frame_every'):
         RegionSearch(full_frame_every=0)
+
+
+# -- tracking between full-frame passes -----------------------------------------------------
+
+def _rendered_tags(shift_m=(0.0, 0.0), with_17=True):
+    """Three tilted tags rendered by the head camera; `shift_m` moves them all sideways
+    (x, y in the camera frame; 4 mm is about 2.5 px at 0.7 m) as a small camera motion."""
+    from abp_description import camera_intrinsics
+    cam = camera_intrinsics()
+    dx, dy = shift_m
+    tags = [(3, tag_pose([-0.12 + dx, 0.02 + dy, 0.7], 30.0)),
+            (17, tag_pose([0.1 + dx, -0.05 + dy, 0.8], -20.0, roll_deg=10.0)),
+            (5, tag_pose([0.0 + dx, 0.12 + dy, 0.6], 0.0, roll_deg=5.0))]
+    tags = [t for t in tags if with_17 or t[0] != 17]
+    return cam, tags, render_tags(cam.K, cam.width, cam.height, tags, 0.08)
+
+
+def test_tracking_finds_the_tags_again_after_a_small_camera_motion():
+    cam, _, before = _rendered_tags()
+    _, tags, after = _rendered_tags(shift_m=(0.005, -0.003))
+    detector = TagDetector(cam.K, image_size=(cam.width, cam.height))
+    previous = detector.detect(before).detections
+    assert sorted(d.tag_id for d in previous) == [3, 5, 17]
+    before_corners = {d.tag_id: d.corners for d in previous}
+    for flow in (before, None):          # with optical flow, and from the old corners alone
+        result, lost = detector.track(after, previous, roi=[(0, 0, 10, 10)],
+                                      previous_gray=flow)
+        assert lost == [] and result.tracked == 3 and result.roi == [(0, 0, 10, 10)]
+        found = {d.tag_id: d for d in result.detections}
+        assert sorted(found) == [3, 5, 17]
+        for tag_id, pose in tags:
+            truth, _ = cv2.projectPoints(marker_object_points(0.08),
+                                         cv2.Rodrigues(pose[:3, :3])[0], pose[:3, 3], cam.K,
+                                         None)
+            # Moved with the tags (about 3 px), to within a full detection's accuracy.
+            assert np.abs(found[tag_id].corners - before_corners[tag_id]).max() > 1.5
+            np.testing.assert_allclose(found[tag_id].corners, truth.reshape(4, 2), atol=0.25)
+            np.testing.assert_allclose(found[tag_id].position, pose[:3, 3], atol=2e-3)
+
+
+def test_tracking_reports_tags_that_are_gone_or_replaced_as_lost():
+    cam, _, before = _rendered_tags()
+    detector = TagDetector(cam.K, image_size=(cam.width, cam.height))
+    previous = detector.detect(before).detections
+    _, _, without_17 = _rendered_tags(with_17=False)
+    result, lost = detector.track(without_17, previous, previous_gray=before)
+    assert lost == [17] and sorted(d.tag_id for d in result.detections) == [3, 5]
+    # Another tag where tag 5 was is not tag 5 found again.
+    renamed = [replace(d, tag_id=7) if d.tag_id == 5 else d for d in previous]
+    result, lost = detector.track(before, renamed)
+    assert lost == [7] and sorted(d.tag_id for d in result.detections) == [3, 17]
+    nothing, lost = detector.track(before, [])
+    assert nothing.detections == [] and lost == []
+    with pytest.raises(ValueError, match='empty image'):
+        detector.track(np.zeros((0, 0), np.uint8), previous)
+    with pytest.raises(ImageSizeError):
+        detector.track(before, previous, previous_gray=before[:240])
+
+
+def test_region_search_tracks_without_aruco_and_searches_when_a_tag_is_lost(monkeypatch):
+    from abp_perception.detector import RegionSearch
+    cam, _, before = _rendered_tags()
+    _, _, after = _rendered_tags(shift_m=(0.004, 0.0))
+    _, _, without_17 = _rendered_tags(shift_m=(0.004, 0.0), with_17=False)
+    detector = TagDetector(cam.K, image_size=(cam.width, cam.height))
+    aruco_calls = []
+    searched = detector._detect_markers
+    monkeypatch.setattr(detector, '_detect_markers',
+                        lambda gray: aruco_calls.append(gray.shape) or searched(gray))
+    search = RegionSearch(full_frame_every=5)
+    first = search.detect(detector, before)
+    assert first.roi is None and first.tracked == 0 and len(aruco_calls) == 1
+    tracked = search.detect(detector, after)
+    assert tracked.tracked == 3 and tracked.roi is not None and len(aruco_calls) == 1
+    # Tag 17 gone: not silently dropped, the region is searched with ArUco.
+    searched_again = search.detect(detector, without_17)
+    assert searched_again.tracked == 0 and len(aruco_calls) == 2
+    assert sorted(d.tag_id for d in searched_again.detections) == [3, 5]
+    off = RegionSearch(full_frame_every=5, track=False)
+    off.detect(detector, before)
+    assert off.detect(detector, after).tracked == 0 and len(aruco_calls) == 4
 
 
 # -- scaled threshold windows and the candidate screen (issue 16) --------------------------

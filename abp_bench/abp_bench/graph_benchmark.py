@@ -274,7 +274,7 @@ def verdict(result):
     planner stopped without an identification, and said why) | hung."""
     if result['hung']:
         return 'hung'
-    # An aborted goal still reports its most likely object; that is no identification.
+    # recognize_client's 'correct' is already false for an aborted goal.
     if not result.get('success'):
         return 'not identified'
     return 'correct' if result['correct'] else 'WRONG'
@@ -284,7 +284,8 @@ def summarise(results, latencies, observation_latencies, args):
     n = len(results)
     verdicts = [verdict(r) for r in results]
     correct = verdicts.count('correct')
-    likely_right = sum(v == 'not identified' and r['correct'] for v, r in zip(verdicts, results))
+    likely_right = sum(v == 'not identified' and bool(r.get('most_likely_correct'))
+                       for v, r in zip(verdicts, results))
     done = [r for r in results if 'actions' in r]
     lat = np.array(latencies) if latencies else np.array([np.nan])
     obs = np.array(observation_latencies) if observation_latencies else np.array([np.nan])

@@ -125,8 +125,8 @@ def test_graph_benchmark_summary_table():
                     wall_s=15.0),
                dict(correct=False, hung=True, wall_s=30.0),
                # Aborted at the action limit with the right most likely object.
-               dict(correct=True, success=False, hung=False, actions=30, elapsed_s=300.0,
-                    wall_s=90.0)]
+               dict(correct=False, most_likely_correct=True, success=False, hung=False,
+                    actions=30, elapsed_s=300.0, wall_s=90.0)]
     table = graph_benchmark.summarise(results, [12.0, 14.0], [5.0], args)
     assert '| correct | 1/5 (20.0 %) |' in table
     assert '| wrong (succeeded on the wrong object) | 1 |' in table

@@ -213,10 +213,14 @@ def report(response, tracer, result_json):
         'elapsed_s': elapsed,
         'entropy': float(tracer.belief.entropy) if tracer.belief else None,
     }
+    identified = response.status == GoalStatus.STATUS_SUCCEEDED and bool(result.success)
     truth = tracer.ground_truth
     if truth is not None:
         summary['ground_truth'] = truth.object_id
-        summary['correct'] = truth.object_id == result.object_id
+        # An aborted goal still names its most likely object: that is no identification,
+        # so 'correct' needs both; the most likely object is reported apart.
+        summary['most_likely_correct'] = truth.object_id == result.object_id
+        summary['correct'] = identified and summary['most_likely_correct']
     print(f"result: {summary['status']}: {result.object_id or '-'} posterior "
           f"{result.posterior:.3f} after {result.actions_taken} actions, {elapsed:.1f} s "
           f"({result.reason})", flush=True)
@@ -225,13 +229,22 @@ def report(response, tracer, result_json):
             f'{oid} {p:.3f}' for oid, p in zip(result.top_object_ids, result.top_posteriors)),
             flush=True)
     if truth is not None:
-        print(f"ground truth: {truth.object_id} -> "
-              f"{'correct' if summary['correct'] else 'WRONG'}", flush=True)
+        print(f'ground truth: {truth.object_id} -> {truth_verdict(summary)}', flush=True)
     if result_json:
         with open(result_json, 'w') as out:
             json.dump(summary, out, indent=2)
-    ok = response.status == GoalStatus.STATUS_SUCCEEDED and result.success
-    return 0 if ok and summary.get('correct', True) else 1
+    return 0 if identified and summary.get('correct', True) else 1
+
+
+def truth_verdict(summary):
+    """'correct', 'WRONG' (identified the wrong object) or 'not identified' (with whether
+    the most likely object was the right one) of a report summary with a ground truth."""
+    if summary['correct']:
+        return 'correct'
+    if summary['status'] == 'succeeded' and summary['success']:
+        return 'WRONG'
+    likely = 'right' if summary['most_likely_correct'] else 'wrong'
+    return f'not identified (most likely object {likely})'
 
 
 if __name__ == '__main__':

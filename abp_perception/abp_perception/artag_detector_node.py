@@ -14,8 +14,9 @@ Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the im
 
 Topic names are relative (abp_common.names): under a namespace the node reads and
 writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
-Between full-frame passes (every `full_frame_every` frames) ArUco searches only around
-the tags of the last frame (`detector.RegionSearch`).
+Between full-frame passes (every `full_frame_every` frames) the last frame's tags are
+found again where they were (`track_tags`) and ArUco searches only around them when one
+is lost (`detector.RegionSearch`).
 The science lives in `abp_perception.detector`; the camera pose in the base frame comes
 from `abp_description.kinematics.RobotKinematics` (Pinocchio over joint_states, no tf2).
 Inputs are rejected, never crash the node, counted in /diagnostics by topic and kind

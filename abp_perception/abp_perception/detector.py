@@ -95,6 +95,7 @@ resized camera would put every tag at twice its distance).
 
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -366,6 +367,9 @@ class Detection:
     single_reprojection_error: float = None
     # (k, 4, 4) single-tag pose solutions, best first (IPPE's two, or the fallback's).
     candidates: np.ndarray = field(default=None, repr=False)
+    # How the tag was first found: 'aruco' (ArUco or the second pass) or 'face_search';
+    # a tag found again by TagDetector.track keeps it.
+    source: str = 'aruco'
 
     @property
     def position(self) -> np.ndarray:
@@ -529,8 +533,9 @@ class RegionSearch:
     camera), ArUco searches the whole image. On the frames between, with `track` on,
     the last frame's tags are first looked for where they were (``TagDetector.track``:
     no ArUco pass, a fraction of its cost on a still or slowly moving camera); when
-    every one of them is found again that is the frame's result, otherwise (or with
-    `track` off) ArUco searches ``search_region`` of the last frame's detections.
+    every one of them is found again (those the face search found last frame: or lost
+    to it again) that is the frame's result, otherwise (or with `track` off) ArUco
+    searches ``search_region`` of the last frame's detections.
     `full_frame_every` 1: always the whole image. A tag that comes into view away from
     the found tags' cubes waits for the next full-frame pass.
 
@@ -567,7 +572,9 @@ class RegionSearch:
         if not due and self.track and self._previous:
             tracked, lost = detector.track(gray, self._previous, roi=self._region,
                                            previous_gray=self._gray)
-            if not lost:
+            # A lost face-search tag was looked for again by track's own face search,
+            # as ArUco's pass in the region would; a lost ArUco tag needs that pass.
+            if all(det.source == 'face_search' for det in lost):
                 result = tracked
         if result is None:
             result = detector.detect(gray, roi=None if due else self._region)
@@ -791,9 +798,10 @@ class TagDetector:
         (the last frame, when given: ``cv2.calcOpticalFlowPyrLK``), refined on `gray` by
         the edge fit and decoded by bits or else by blurred-code correlation; a tag
         counts as found again only under its own id. Then the face search and the
-        rigid-cube fit, as in ``detect``. Returns (DetectionResult, the ids of `previous`
-        not found again); the result's `roi` is `roi` (what the caller would have
-        searched) and `tracked` counts the tags found again.
+        rigid-cube fit, as in ``detect``. Returns (DetectionResult, the detections of
+        `previous` whose id is found again by neither); the result's `roi` is `roi` (what
+        the caller would have searched) and `tracked` counts the tags found again at
+        their old places.
 
         Raises ValueError as ``detect`` does for an image it refuses (`previous_gray`
         too)."""
@@ -819,18 +827,21 @@ class TagDetector:
                     found[k] = np.roll(refined[k], res[1], axis=0)
         detections, dropped = [], []
         for k in sorted(found):
-            det = self._pose(ids[k], found[k])
-            if isinstance(det, DroppedDetection):
-                dropped.append(det)
-                del found[k]
-            else:
-                detections.append(det)
-        lost = [ids[k] for k in range(len(ids)) if k not in found]
+            det = self._pose(ids[k], found[k], previous[k].source)
+            (dropped if isinstance(det, DroppedDetection) else detections).append(det)
         tracked = len(detections)
-        # Faces that came into view next to the tags (a cube turned by an action).
+        # Faces that came into view next to the tags (a cube turned by an action), and
+        # the face-search tags of the last frame, predicted again from their neighbours.
         on_faces = self._search_faces(gray, detections) if self.face_search else []
         detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
+        left = collections.Counter(d.tag_id for d in detections)
+        lost = []
+        for det in previous:
+            if left[det.tag_id] > 0:
+                left[det.tag_id] -= 1
+            else:
+                lost.append(det)
         return DetectionResult(detections, dropped, 0, cubes, roi, len(on_faces),
                                tracked), lost
 
@@ -925,7 +936,7 @@ class TagDetector:
             if _inside_any(centre, known)[0] or (
                     dets and _inside_any(centre, np.array([d.corners for d in dets]))[0]):
                 continue
-            det = self._pose(tag_id, quad)
+            det = self._pose(tag_id, quad, 'face_search')
             if not isinstance(det, DroppedDetection):
                 dets.append(det)
         return dets
@@ -1018,7 +1029,7 @@ class TagDetector:
             found.append(res[0])
         return np.array(quads).reshape(-1, 4, 2), found
 
-    def _pose(self, tag_id, quad):
+    def _pose(self, tag_id, quad, source='aruco'):
         if not np.isfinite(quad).all():
             return DroppedDetection(tag_id, 'non-finite corners', quad)
         area = float(quad_areas(quad[None])[0])
@@ -1080,7 +1091,7 @@ class TagDetector:
                 break
         return Detection(tag_id, quad.copy(), pose, cov, rms, confidence, side,
                          self.marker_size, self.camera_frame, ambiguity, solver,
-                         candidates=np.array(cands))
+                         candidates=np.array(cands), source=source)
 
     def _solve_pnp(self, quad, name, flag):
         """[(rms px, rvec, tvec, name)] of cv2.solvePnPGeneric with `flag`, finite ones,

@@ -148,5 +148,6 @@ def test_transport_benchmark(capsys):
     assert transport_benchmark.main(['--frames', '2']) == 0
     out = capsys.readouterr().out
     assert '| JPEG q80 CompressedImage |' in out and 'Tags found on the raw frames' in out
+    assert '| PNG CompressedImage of `mono8` |' in out and 'for PNG of mono8' in out
     with pytest.raises(SystemExit):
         transport_benchmark.main(['--quality', '0'])

@@ -394,6 +394,7 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
     degrader = Degrader(gen.width, gen.height, seed=seed + 16)
     motion = np.random.default_rng(seed + 32)    # apart, so the scenes stay as they were
     search = RegionSearch(full_frame_every=5)
+    untracked = RegionSearch(full_frame_every=5, track=False)
     rows, frames_out = [], []
     for condition in conditions:
         for _ in range(frames):
@@ -423,6 +424,11 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
             t0 = time.thread_time()
             next_frame = search.detect(ours, moved)
             cpu_next = time.thread_time() - t0
+            untracked.reset()
+            untracked.detect(ours, gray)
+            t0 = time.thread_time()
+            next_untracked = untracked.detect(ours, moved)
+            cpu_untracked = time.thread_time() - t0
             world = result.in_frame(scene.camera_pose, 'base_link')
             a, wrong_a = score(scene, [(d.tag_id, d.corners, d.pose, d.single_tag_pose)
                                        for d in world.detections], hidden)
@@ -432,12 +438,14 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
                                  for d in in_region.detections], hidden)
             n, _ = score(scene, [(d.tag_id, unmoved(d.corners, affine), None, None)
                                  for d in next_frame.detections], hidden)
-            for (ra, rb, rc, rn) in zip(a, b, c, n):
+            u, _ = score(scene, [(d.tag_id, unmoved(d.corners, affine), None, None)
+                                 for d in next_untracked.detections], hidden)
+            for (ra, rb, rc, rn, ru) in zip(a, b, c, n, u):
                 rows.append({'condition': condition, 'distance': ra[0], 'angle': ra[1],
                              'ours': ra[2], 'cv': rb[2], 'pos_ours': ra[3], 'pos_cv': rb[3],
                              'rot_ours': ra[4], 'rot_single': ra[5], 'rot_cv': rb[4],
                              'multi': ra[6], 'multi_cv': rb[6], 'region': rc[2],
-                             'next': rn[2]})
+                             'next': rn[2], 'next_untracked': ru[2]})
             # The aspect matcher on our detections, as the graph runs it (issue 16 goal).
             best = matcher.match(features_from_detections(world.detections)).best
             verdict = aspect_verdict(None if best is None else best.key, scene.aspect)
@@ -449,6 +457,7 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
                                'det_ours': len(result.detections), 'det_cv': len(theirs),
                                'cpu_region': cpu_region, 'image_px': gray.size,
                                'cpu_next': cpu_next, 'next_tracked': next_frame.tracked > 0,
+                               'cpu_untracked': cpu_untracked,
                                'region_px': 0 if region is None else sum(
                                    (x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in region)})
     return rows, frames_out
@@ -553,19 +562,22 @@ def region_table(rows, frames, full_frame_every=5):
 
 
 def tracking_table(rows, frames, full_frame_every=5):
-    """CPU and recall of RegionSearch's frames between full-frame passes (tracking, or the
-    region searched where a tag was lost), on the moved frame, against the full frame."""
+    """CPU and recall of RegionSearch's frames between full-frame passes, on the moved
+    frame: with tracking (or the region searched where a tag was lost) and without it
+    (the region searched), against the full frame."""
     out = ['| condition | next frames tracked (every tag found again) | recall full frame / '
-           'next frame | CPU median full frame / next frame / OpenCV (ms) | '
-           f'RegionSearch(full_frame_every={full_frame_every}) per frame: median, mean (ms), '
-           'mean ratio to OpenCV |', '|---|---|---|---|---|']
+           'next frame tracked / next frame region only | CPU median full frame / next '
+           'frame tracked / region only / OpenCV (ms) | '
+           f'RegionSearch(full_frame_every={full_frame_every}) per frame, tracked: median, '
+           'mean (ms), mean ratio to OpenCV |', '|---|---|---|---|---|']
     for cond, sel, fr in _by_condition(rows, frames):
-        full, nxt, cv = (1e3 * np.array([f[k] for f in fr])
-                         for k in ('cpu_ours', 'cpu_next', 'cpu_cv'))
+        full, nxt, region, cv = (1e3 * np.array([f[k] for f in fr])
+                                 for k in ('cpu_ours', 'cpu_next', 'cpu_untracked', 'cpu_cv'))
         seq = np.concatenate([full, np.repeat(nxt, full_frame_every - 1)])
         tracked = sum(f['next_tracked'] for f in fr)
         out.append(f"| {cond} | {tracked} of {len(fr)} | {_pct(sel, 'ours')} / "
-                   f"{_pct(sel, 'next')} | {np.median(full):.2f} / {np.median(nxt):.2f} / "
+                   f"{_pct(sel, 'next')} / {_pct(sel, 'next_untracked')} | "
+                   f'{np.median(full):.2f} / {np.median(nxt):.2f} / {np.median(region):.2f} / '
                    f'{np.median(cv):.2f} | {np.median(seq):.2f}, {seq.mean():.2f}, '
                    f'{seq.mean() / cv.mean():.2f} |')
     return '\n'.join(out)
@@ -656,8 +668,9 @@ def section(rows, frames, command, per_condition):
         '`track` on) gets it, moved in the image by up to '
         f'{MOVE_SHIFT_PX:g} px and {MOVE_ROTATION_DEG:g}° (`moved_frame`): the last '
         "frame's tags found again where they were (`TagDetector.track`, no ArUco pass), "
-        'or, where one is lost, ArUco in `search_region`. The per-frame figures of '
-        '`RegionSearch` count 1 full frame and 4 such frames.', '',
+        'or, where one is lost, ArUco in `search_region`; and, on the same moved frame, '
+        '`RegionSearch` with `track` off (ArUco in `search_region`). The per-frame '
+        'figures of `RegionSearch` count 1 full frame and 4 tracked frames.', '',
         tracking_table(rows, frames),
     ]
     lines += ['', '### Aspect top-1 (the aspect matcher on our detections)', '',

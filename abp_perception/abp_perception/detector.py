@@ -564,8 +564,9 @@ class RegionSearch:
     def detect(self, detector, gray) -> DetectionResult:
         """``detector.detect`` of `gray` in the region (or the whole image) due, or the
         last frame's tags found again (``detector.track``)."""
-        if detector is not self._detector:
-            self.reset()
+        if detector is not self._detector or (
+                self._gray is not None and np.shape(gray) != self._gray.shape):
+            self.reset()                 # a new camera, or a new image size
             self._detector = detector
         due = self._region is None or self._since_full >= self.full_frame_every - 1
         result = None
@@ -813,7 +814,12 @@ class TagDetector:
         quads = np.array([np.asarray(d.corners, dtype=np.float64).reshape(4, 2)
                           for d in previous])
         if previous_gray is not None:
-            quads = self._flow(self.check_image(previous_gray), gray, quads)
+            previous_gray = self.check_image(previous_gray)
+            if previous_gray.shape != gray.shape:
+                raise ImageSizeError(
+                    f'previous_gray is {previous_gray.shape[1]}x{previous_gray.shape[0]} px, '
+                    f'the image {gray.shape[1]}x{gray.shape[0]} px: the flow needs one size')
+            quads = self._flow(previous_gray, gray, quads)
         refined, ok = refine_quads(gray, quads)
         found = {}
         for k, res in enumerate(decode_quads(gray, refined, self.dictionary)):

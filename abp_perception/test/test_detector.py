@@ -489,8 +489,11 @@ def test_tracking_reports_tags_that_are_gone_or_replaced_as_lost():
     assert nothing.detections == [] and lost == []
     with pytest.raises(ValueError, match='empty image'):
         detector.track(np.zeros((0, 0), np.uint8), previous)
-    with pytest.raises(ImageSizeError):
+    with pytest.raises(ImageSizeError, match='image is 640x240 px'):
         detector.track(before, previous, previous_gray=before[:240])
+    any_size = TagDetector(cam.K)
+    with pytest.raises(ImageSizeError, match='one size'):
+        any_size.track(before, previous, previous_gray=before[:240])
 
 
 def test_region_search_tracks_without_aruco_and_searches_when_a_tag_is_lost(monkeypatch):
@@ -512,6 +515,11 @@ def test_region_search_tracks_without_aruco_and_searches_when_a_tag_is_lost(monk
     searched_again = search.detect(detector, without_17)
     assert searched_again.tracked == 0 and len(aruco_calls) == 2
     assert sorted(d.tag_id for d in searched_again.detections) == [3, 5]
+    # Another image size (no image_size given): searched whole, not flowed across sizes.
+    any_size = TagDetector(cam.K)
+    resized = RegionSearch(full_frame_every=5)
+    resized.detect(any_size, before)
+    assert resized.detect(any_size, cv2.resize(after, (320, 240))).roi is None
     off = RegionSearch(full_frame_every=5, track=False)
     off.detect(detector, before)
     assert off.detect(detector, after).tracked == 0 and len(aruco_calls) == 4

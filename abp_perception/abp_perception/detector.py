@@ -55,6 +55,13 @@ Pipeline per grey image (``TagDetector.detect``):
    its own pose in ``single_pose`` / ``single_covariance`` / ``single_reprojection_error``
    (``single_tag_pose`` gives the tag's own pose either way).
 
+Tracking (``TagDetector.track``; ``RegionSearch`` between full-frame passes): the last
+frame's tags are followed instead of searched for: corners moved by Lucas-Kanade optical
+flow, refined (step 2), decoded again under their own id (step 3's bits, or the face
+search's blurred-code correlation), then steps 4-6 (face search, rigid cube). No ArUco
+pass; ``RegionSearch`` falls back to ArUco in the region when a tag ArUco had found is
+lost (``Detection.source``).
+
 Covariance model (6 x 6, order x, y, z, rot x, rot y, rot z, axes of the output frame;
 rotations as a small rotation vector). With ``f`` the focal length (px), ``s`` the
 marker size, ``t`` the tag centre in the camera frame, range ``r = |t|``, ``side`` the

@@ -88,6 +88,8 @@ class ArtagDetectorNode(ManagedNode):
         self._camera_key = None
         self._joints = None
         self.health = NodeHealth(self)
+        self.health.add_values(lambda: [(f'frames searched: {kind}', count)
+                                        for kind, count in self.search.frames.items()])
         self._image_stamps = self.health.stamp_check()
         self.image_transport = self._values['image_transport']
         self.image_topic = names.IMAGE + (COMPRESSED_SUFFIX if self.image_transport ==

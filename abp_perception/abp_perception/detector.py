@@ -534,6 +534,11 @@ def search_region(detections, shape, margin=1.5, min_margin_px=24.0):
     return clip_regions(boxes, shape) if boxes else None
 
 
+# How RegionSearch searched a frame: ArUco on the whole image, ArUco in the region around
+# the last tags, or the last tags followed (TagDetector.track).
+SEARCH_KINDS = ('whole image', 'region', 'tracked')
+
+
 class RegionSearch:
     """Search where the tags were. Every `full_frame_every`-th frame (the first one
     included), after a frame with no detection and after the detector changed (a new
@@ -561,6 +566,8 @@ class RegionSearch:
         self.full_frame_every = int(full_frame_every)
         self.margin, self.min_margin_px = float(margin), float(min_margin_px)
         self.track = bool(track)
+        # Frames since construction by how they were searched (SEARCH_KINDS).
+        self.frames = dict.fromkeys(SEARCH_KINDS, 0)
         self.reset()
 
     def reset(self):
@@ -586,6 +593,10 @@ class RegionSearch:
                 result = tracked
         if result is None:
             result = detector.detect(gray, roi=None if due else self._region)
+            kind = 'whole image' if result.roi is None else 'region'
+        else:
+            kind = 'tracked'
+        self.frames[kind] += 1
         self._since_full = 0 if result.roi is None else self._since_full + 1
         self._previous = list(result.detections)
         # A copy: the caller may reuse its image buffer.

@@ -514,6 +514,7 @@ def test_region_search_tracks_without_aruco_and_searches_when_a_tag_is_lost(monk
     # Tag 17 gone: not silently dropped, the region is searched with ArUco.
     searched_again = search.detect(detector, without_17)
     assert searched_again.tracked == 0 and len(aruco_calls) == 2
+    assert search.frames == {'whole image': 1, 'region': 1, 'tracked': 1}
     assert sorted(d.tag_id for d in searched_again.detections) == [3, 5]
     # Another image size (no image_size given): searched whole, not flowed across sizes.
     any_size = TagDetector(cam.K)

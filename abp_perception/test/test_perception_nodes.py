@@ -19,9 +19,11 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
                 allow_module_level=True)
 
 from builtin_interfaces.msg import Time  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
+from abp_common.health import DIAGNOSTICS  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_msgs.msg import TagDetectionArray  # noqa: E402
 
@@ -180,6 +182,53 @@ def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_process
     for tag_id, pose in tags.items():
         p = found[tag_id].pose.pose.position
         np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=0.01)
+    assert proc.poll() is None
+
+
+def test_frames_between_full_searches_are_tracked_and_counted(ros_processes, tester, spin):
+    cam = camera_intrinsics()
+    proc = ros_processes.start([executable('artag_detector'), '--ros-args',
+                                '-p', 'full_frame_every:=4'])
+    node, executor = tester
+    image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
+    info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
+    detections, frames = [], {}
+
+    def on_diagnostics(msg):
+        for status in msg.status:
+            if status.name.endswith('artag_detector: health'):
+                frames.update({kv.key: int(kv.value) for kv in status.values
+                               if kv.key.startswith('frames searched: ')})
+
+    node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
+                             qos.RELIABLE)
+    node.create_subscription(DiagnosticArray, DIAGNOSTICS, on_diagnostics, 10)
+    assert spin(executor, lambda: image_pub.get_subscription_count() > 0
+                and info_pub.get_subscription_count() > 0
+                and node.count_publishers(names.TAG_DETECTIONS) > 0, 30)
+    tags = {3: tag_pose([-0.1, 0.0, 0.7], 25.0), 8: tag_pose([0.12, 0.05, 0.9], -15.0)}
+    scene = render_tags(cam.K, cam.width, cam.height, list(tags.items()), 0.08)
+    # A still camera: the same view, frame after frame, until the node has reported
+    # frames it tracked (3 of every 4) and whole-image searches (1 of every 4).
+    sec = 10
+    deadline = time.monotonic() + 90.0
+    while time.monotonic() < deadline and not (
+            frames.get('frames searched: tracked', 0) >= 3
+            and frames.get('frames searched: whole image', 0) >= 1):
+        sec += 1
+        info_pub.publish(camera_info_msg(cam))
+        image_pub.publish(image_msg(scene, cam.frame_id, Time(sec=sec)))
+        spin(executor, lambda: False, 0.1)
+    assert frames.get('frames searched: tracked', 0) >= 3, frames
+    assert frames.get('frames searched: region', 0) == 0, frames   # nothing was lost
+    # Every frame, tracked or searched, gave both tags where they are.
+    assert len(detections) >= 4
+    for out in detections:
+        found = {d.id: d.pose.pose.position for d in out.detections}
+        assert sorted(found) == [3, 8]
+        for tag_id, pose in tags.items():
+            p = found[tag_id]
+            np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=0.01)
     assert proc.poll() is None
 
 

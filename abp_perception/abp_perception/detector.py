@@ -843,10 +843,10 @@ class TagDetector:
         for k, res in enumerate(decode_quads(gray, refined, self.dictionary)):
             if ok[k] and res is not None and res[0] == ids[k]:
                 found[k] = np.roll(refined[k], res[1], axis=0)
-        left = [k for k in range(len(ids)) if k not in found]
-        if self.blur_decode and left:
+        unread = [k for k in range(len(ids)) if k not in found]
+        if self.blur_decode and unread:
             # ArUco order is clockwise on screen, as decode_blurred wants it.
-            for k, res in zip(left, decode_blurred(gray, refined[left], self.dictionary)):
+            for k, res in zip(unread, decode_blurred(gray, refined[unread], self.dictionary)):
                 if res is not None and res[0] == ids[k]:
                     found[k] = np.roll(refined[k], res[1], axis=0)
         detections, dropped = [], []
@@ -859,11 +859,11 @@ class TagDetector:
         on_faces = self._search_faces(gray, detections) if self.face_search else []
         detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
-        left = collections.Counter(d.tag_id for d in detections)
+        unclaimed = collections.Counter(d.tag_id for d in detections)
         lost = []
         for det in previous:
-            if left[det.tag_id] > 0:
-                left[det.tag_id] -= 1
+            if unclaimed[det.tag_id] > 0:
+                unclaimed[det.tag_id] -= 1
             else:
                 lost.append(det)
         return DetectionResult(detections, dropped, 0, cubes, roi, len(on_faces),

@@ -565,7 +565,7 @@ def tracking_table(rows, frames, full_frame_every=5):
     """CPU and recall of RegionSearch's frames between full-frame passes, on the moved
     frame: with tracking (or the region searched where a tag was lost) and without it
     (the region searched), against the full frame."""
-    out = ['| condition | next frames tracked (every tag found again) | recall full frame / '
+    out = ['| condition | next frames tracked (no ArUco pass) | recall full frame / '
            'next frame tracked / next frame region only | CPU median full frame / next '
            'frame tracked / region only / OpenCV (ms) | '
            f'RegionSearch(full_frame_every={full_frame_every}) per frame, tracked: median, '

@@ -251,9 +251,12 @@ def run_episode(args, index, workdir, params_file, bag=None):
     if bag is not None:
         cmd += ['--record', str(bag)]
     started = time.monotonic()
+    # stderr kept: where the episode ends without a result, it says why.
+    errors = workdir / f'episode-{index}.stderr'
     # Its own session: stop_graph can kill the whole graph without killing this process.
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                            start_new_session=True, preexec_fn=terminate_with_parent)
+    with open(errors, 'wb') as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err,
+                                start_new_session=True, preexec_fn=terminate_with_parent)
     try:
         proc.wait(timeout=args.timeout + 120)
     except subprocess.TimeoutExpired:
@@ -266,14 +269,21 @@ def run_episode(args, index, workdir, params_file, bag=None):
     result = json.loads(result_file.read_text()) if result_file.exists() else {}
     result.update(object=index, hung=False, wall_s=time.monotonic() - started)
     result.setdefault('correct', False)
+    if 'status' not in result:
+        # No result from the client: the graph never came up, or no goal ran to its end.
+        lines = errors.read_text(errors='replace').strip().splitlines()
+        result['no_result'] = lines[-1] if lines else f'start_graph.sh exited {proc.returncode}'
     return result
 
 
 def verdict(result):
     """correct | WRONG (named the wrong object) | not identified (the goal aborted: the
-    planner stopped without an identification, and said why) | hung."""
+    planner stopped without an identification, and said why) | no result (the client
+    wrote none: the graph did not come up, or the goal timed out) | hung."""
     if result['hung']:
         return 'hung'
+    if 'no_result' in result:
+        return 'no result'
     # recognize_client's 'correct' is already false for an aborted goal.
     if not result.get('success'):
         return 'not identified'
@@ -296,6 +306,8 @@ def summarise(results, latencies, observation_latencies, args):
         ('not identified (aborted with a reason)',
          f"{verdicts.count('not identified')}"
          + (f' ({likely_right} with the right most likely object)' if likely_right else '')),
+        ('no result (the graph did not come up, or the goal timed out)',
+         f"{verdicts.count('no result')}"),
         ('hung (no result within the timeout)', f"{verdicts.count('hung')}"),
         ('mean actions', f"{statistics.mean(r['actions'] for r in done):.2f}" if done else '-'),
         ('mean sim time per episode (s)',
@@ -347,7 +359,8 @@ def main(argv=None):
                     (record / 'labels.yaml').write_text('\n'.join(labels) + '\n')
                 print(f'[{number}/{args.episodes}] object {index}: {verdict(result)} '
                       f"{result.get('object_id', '-')} (truth {result.get('ground_truth', '-')}) "
-                      f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall",
+                      f"{result.get('actions', '-')} actions, {result['wall_s']:.0f} s wall"
+                      + (f": {result['no_result']}" if 'no_result' in result else ''),
                       file=sys.stderr, flush=True)
         except KeyboardInterrupt:
             # The finished episodes are still summarised and written: a long run stopped

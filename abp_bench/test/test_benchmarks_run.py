@@ -126,13 +126,18 @@ def test_graph_benchmark_summary_table():
                dict(correct=False, hung=True, wall_s=30.0),
                # Aborted at the action limit with the right most likely object.
                dict(correct=False, most_likely_correct=True, success=False, hung=False,
-                    actions=30, elapsed_s=300.0, wall_s=90.0)]
+                    actions=30, elapsed_s=300.0, wall_s=90.0),
+               # start_graph gave up on a graph that never came up: no result JSON.
+               dict(correct=False, hung=False, wall_s=602.0,
+                    no_result='[start_graph] the graph is not ready after 600 s')]
     table = graph_benchmark.summarise(results, [12.0, 14.0], [5.0], args)
-    assert '| correct | 1/5 (20.0 %) |' in table
+    assert '| correct | 1/6 (16.7 %) |' in table
     assert '| wrong (succeeded on the wrong object) | 1 |' in table
     assert ('| not identified (aborted with a reason) | 2 (1 with the right most likely '
             'object) |') in table
     assert '| hung (no result within the timeout) | 1 |' in table
+    assert '| no result (the graph did not come up, or the goal timed out) | 1 |' in table
+    assert graph_benchmark.verdict(results[-1]) == 'no result'
     assert '| mean actions | 10.50 |' in table
     assert ('mujoco world, robot models (corrected tables), planner cost, without fault '
             'injection') in table

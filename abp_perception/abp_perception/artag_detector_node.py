@@ -123,12 +123,9 @@ class ArtagDetectorNode(ManagedNode):
         if every and every[-1] < 1:
             return SetParametersResult(successful=False, reason='full_frame_every must be >= 1')
         track = [bool(p.value) for p in params if p.name == 'track_tags']
-        if track:
-            self.search.track = track[-1]
         changes = {p.name: p.value for p in params if p.name in DETECTOR_PARAMETERS}
         if not changes:
-            if every:
-                self.search.full_frame_every = every[-1]
+            self._set_search(every, track)
             return SetParametersResult(successful=True)
         config = dict(self._config, **changes)
         try:
@@ -144,9 +141,15 @@ class ArtagDetectorNode(ManagedNode):
         self._config = config
         if detector is not None:
             self.detector = detector
+        self._set_search(every, track)
+        return SetParametersResult(successful=True)
+
+    def _set_search(self, every, track):
+        """Apply accepted full_frame_every / track_tags values (lists, last one wins)."""
         if every:
             self.search.full_frame_every = every[-1]
-        return SetParametersResult(successful=True)
+        if track:
+            self.search.track = track[-1]
 
     # -- callbacks ----------------------------------------------------------------
     def _on_camera_info(self, msg: CameraInfo):

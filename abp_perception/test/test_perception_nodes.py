@@ -20,6 +20,8 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
 
 from builtin_interfaces.msg import Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rcl_interfaces.srv import SetParameters  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
@@ -229,6 +231,18 @@ def test_frames_between_full_searches_are_tracked_and_counted(ros_processes, tes
         for tag_id, pose in tags.items():
             p = found[tag_id]
             np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=0.01)
+    # track_tags off at run time: the frames between are searched with ArUco again.
+    client = node.create_client(SetParameters, '/artag_detector/set_parameters')
+    assert spin(executor, client.service_is_ready, 30)
+    future = client.call_async(SetParameters.Request(parameters=[
+        Parameter('track_tags', value=False).to_parameter_msg()]))
+    assert spin(executor, future.done, 30) and future.result().results[0].successful
+    deadline = time.monotonic() + 90.0
+    while time.monotonic() < deadline and frames.get('frames searched: region', 0) < 3:
+        sec += 1
+        image_pub.publish(image_msg(scene, cam.frame_id, Time(sec=sec)))
+        spin(executor, lambda: False, 0.1)
+    assert frames.get('frames searched: region', 0) >= 3, frames
     assert proc.poll() is None
 
 

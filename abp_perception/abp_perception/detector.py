@@ -799,16 +799,8 @@ class TagDetector:
             if recovered:
                 quads = np.concatenate([quads, extra_quads])
                 tag_ids += extra_ids
-        detections, dropped = [], []
-        for tag_id, quad in zip(tag_ids, quads):
-            det = self._pose(tag_id, quad)
-            if isinstance(det, DroppedDetection):
-                dropped.append(det)
-            else:
-                detections.append(det)
-        on_faces = self._search_faces(gray, detections) if self.face_search else []
-        detections += on_faces
-        cubes = self._rigid_cubes(detections) if self.cube_size else []
+        detections, dropped, on_faces, cubes = self._finish(
+            gray, [(tag_id, quad, 'aruco') for tag_id, quad in zip(tag_ids, quads)])
         return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces))
 
     def track(self, gray, previous, roi=None, previous_gray=None):
@@ -849,16 +841,11 @@ class TagDetector:
             for k, res in zip(unread, decode_blurred(gray, refined[unread], self.dictionary)):
                 if res is not None and res[0] == ids[k]:
                     found[k] = np.roll(refined[k], res[1], axis=0)
-        detections, dropped = [], []
-        for k in sorted(found):
-            det = self._pose(ids[k], found[k], previous[k].source)
-            (dropped if isinstance(det, DroppedDetection) else detections).append(det)
-        tracked = len(detections)
-        # Faces that came into view next to the tags (a cube turned by an action), and
-        # the face-search tags of the last frame, predicted again from their neighbours.
-        on_faces = self._search_faces(gray, detections) if self.face_search else []
-        detections += on_faces
-        cubes = self._rigid_cubes(detections) if self.cube_size else []
+        # The face search also finds faces that came into view next to the tags (a cube
+        # turned by an action) and last frame's face-search tags, from their neighbours.
+        detections, dropped, on_faces, cubes = self._finish(
+            gray, [(ids[k], found[k], previous[k].source) for k in sorted(found)])
+        tracked = len(detections) - len(on_faces)
         unclaimed = collections.Counter(d.tag_id for d in detections)
         lost = []
         for det in previous:
@@ -868,6 +855,20 @@ class TagDetector:
                 lost.append(det)
         return DetectionResult(detections, dropped, 0, cubes, roi, len(on_faces),
                                tracked), lost
+
+    def _finish(self, gray, read):
+        """How ``detect`` and ``track`` end: poses of the tags read [(tag_id, quad,
+        source)] (steps 4-5; those dropped apart), the face search from them and the
+        rigid-cube fit. Returns (detections, dropped, the face search's share of
+        detections, cubes)."""
+        detections, dropped = [], []
+        for tag_id, quad, source in read:
+            det = self._pose(tag_id, quad, source)
+            (dropped if isinstance(det, DroppedDetection) else detections).append(det)
+        on_faces = self._search_faces(gray, detections) if self.face_search else []
+        detections += on_faces
+        cubes = self._rigid_cubes(detections) if self.cube_size else []
+        return detections, dropped, on_faces, cubes
 
     @staticmethod
     def _flow(before, after, quads):

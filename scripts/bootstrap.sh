@@ -17,6 +17,8 @@ REQ_DIR="$REPO/requirements"
 ROS_DISTRO_DIR="/opt/ros/jazzy"
 PACKAGES=(abp_msgs abp_common abp_description abp_belief abp_planner abp_perception abp_skills abp_sim_bridge
           abp_bringup abp_bench)
+# Message packages the PyPI wheels lack (vendor/README.md); a robot's ROS already has them.
+VENDORED=(vendor/control_msgs vendor/tf2_msgs)
 
 log() { printf '[bootstrap] %s\n' "$*" >&2; }
 die() { printf '[bootstrap] error: %s\n' "$*" >&2; exit 1; }
@@ -35,6 +37,7 @@ if [ -d "$ROS_DISTRO_DIR" ]; then
   PYTHON="${ABP_PYTHON:-/usr/bin/python3}"
 else
   USE_SYSTEM_ROS=0
+  PACKAGES+=("${VENDORED[@]}")
   PYTHON="${ABP_PYTHON:-}"
   if [ -z "$PYTHON" ]; then
     for candidate in python3.11 python3; do

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from abp_belief.model_set_config import POPULATION_SPECS
+from abp_common.base_command import SPECS as BASE_COMMAND_SPECS
 from abp_common.param_spec import (
     BOOL,
     DOUBLE,
@@ -61,6 +62,11 @@ PARAMETERS = (
               'reset; 0 = only then).', (0.0, 1000.0)),
     ParamSpec('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for '
               'this long (s of simulation time).', (0.001, 60.0)),
+    *BASE_COMMAND_SPECS,
+    ParamSpec('stopped_velocity_tolerance', DOUBLE, 0.01, 'The simulated trajectory '
+              "controllers' default goal velocity tolerance, rad/s (as Jazzy's "
+              'joint_trajectory_controller constraints.stopped_velocity_tolerance).',
+              (0.0, 10.0), read_only=True),
     # -- the hidden cube ------------------------------------------------------------------
     ParamSpec('face_tags', INT_ARRAY, None, 'Explicit hidden cube: tag id on each body face '
               '(+x -x +y -y +z -z), 6 distinct ids 0..49; empty = take it from the model set.'),

@@ -6,15 +6,19 @@ One `TrajectoryFollower` per controller (a fixed tuple of joints):
 - `set_trajectory(names, points, start, now, q, v)`: a new trajectory replaces the running
   one. Point times (`time_from_start`) count from `start` (the message's header.stamp; a
   zero stamp means "on receipt", i.e. `now`). The first segment runs from the joints'
-  state at receipt to the first point. A message with **no points** stops the controller
-  and holds the current position. Positions are clamped to the joint limits.
+  state at receipt to the first point. Positions are clamped to the joint limits.
+- Refused as Jazzy's joint_trajectory_controller refuses them (its messages, word for
+  word where it has one; `TrajectoryError`): a message with **no points** ("Empty
+  trajectory received." -- a stop is a one-point hold, `hold_message`), one that does not
+  name every joint of the controller (allow_partial_joints_goal is false by default), a
+  joint of another controller, a last point with a non-zero velocity
+  (allow_nonzero_velocity_at_trajectory_end is false by default), times that do not
+  increase strictly, sizes that disagree.
 - Interpolation as the controller's default "splines": linear between points that give
   positions only, cubic Hermite when every point also gives velocities (accelerations
   are ignored). Before `start` the joints hold; after the last point they hold it.
-- Joints of the controller missing from a message hold their position (the real
-  controller refuses such goals unless allow_partial_joints_goal is set; holding is the
-  lenient equivalent). A message naming a joint of another controller, or with
-  inconsistent sizes or times, is refused as a whole (`TrajectoryError`).
+- `hold(q)`: the controller's own hold (after a cancel, an abort or a tolerance
+  violation): stop where the joints are.
 
 Times are float seconds of the simulation clock.
 """
@@ -23,6 +27,9 @@ import bisect
 from dataclasses import dataclass
 
 import numpy as np
+
+# Single-precision epsilon: how close to zero the controller wants the last velocity.
+FLOAT_EPS = float(np.finfo(np.float32).eps)
 
 
 class TrajectoryError(ValueError):
@@ -53,6 +60,10 @@ class TrajectoryFollower:
         return self._times is not None
 
     @property
+    def holding(self):
+        return self._times is None
+
+    @property
     def end_time(self):
         return None if self._times is None else float(self._times[-1])
 
@@ -61,33 +72,38 @@ class TrajectoryFollower:
         self._times = self._pos = self._vel = None
         self._hold = np.clip(np.asarray(q, dtype=float), self.lower, self.upper)
 
-    def set_trajectory(self, names, points, start, now, q, v=None):
-        """Replace the running trajectory. `q`, `v`: current positions/velocities of the
-        controller's joints (controller order). Returns the number of points accepted."""
+    def check(self, names, points):
+        """Raise TrajectoryError when the controller refuses a trajectory of `names` and
+        `points` (what Jazzy's joint_trajectory_controller validates before it accepts a
+        message or an action goal); nothing changes."""
         names = list(names)
-        q = np.asarray(q, dtype=float)
-        v = np.zeros_like(q) if v is None else np.asarray(v, dtype=float)
+        if not names:
+            raise TrajectoryError('Empty joint names on incoming trajectory.')
         unknown = [n for n in names if n not in self.joint_names]
         if unknown:
-            raise TrajectoryError(f'joints {unknown} are not controlled here '
-                                  f'(this controller has {list(self.joint_names)})')
+            raise TrajectoryError(f"Incoming joint {unknown[0]} doesn't match the "
+                                  f'controller\'s joints ({", ".join(self.joint_names)}).')
         if len(set(names)) != len(names):
             raise TrajectoryError('duplicate joint names')
+        if len(names) != len(self.joint_names):
+            raise TrajectoryError("Joints on incoming trajectory don't match the controller "
+                                  f'joints: {len(names)} of {len(self.joint_names)} named '
+                                  '(partial goals are not allowed)')
         if not points:
-            self.hold(q)
-            return 0
-        if not names:
-            raise TrajectoryError('points given but no joint names')
-        cols = [self.joint_names.index(n) for n in names]
+            raise TrajectoryError('Empty trajectory received. (A stop is a one-point hold '
+                                  'at the current position.)')
+        last_v = points[-1].velocities
+        if last_v is not None and len(last_v) and np.any(np.abs(last_v) > FLOAT_EPS):
+            raise TrajectoryError('Velocity of the last trajectory point is not zero')
         with_vel = all(p.velocities is not None and len(p.velocities) for p in points)
-        times, pos, vel = [], [], []
         last = -np.inf
         for i, p in enumerate(points):
             t = float(p.time_from_start)
             if not np.isfinite(t) or t < 0:
                 raise TrajectoryError(f'point {i}: time_from_start must be >= 0')
             if t <= last:
-                raise TrajectoryError(f'point {i}: time_from_start must increase strictly')
+                raise TrajectoryError(f'Time between points {i - 1} and {i} is not strictly '
+                                      'increasing')
             last = t
             if len(p.positions) != len(names):
                 raise TrajectoryError(f'point {i}: {len(p.positions)} positions for '
@@ -95,11 +111,24 @@ class TrajectoryFollower:
             if with_vel and len(p.velocities) != len(names):
                 raise TrajectoryError(f'point {i}: {len(p.velocities)} velocities for '
                                       f'{len(names)} joints')
+            if not np.all(np.isfinite(np.asarray(p.positions, dtype=float))):
+                raise TrajectoryError(f'point {i}: positions must be finite')
+        return with_vel
+
+    def set_trajectory(self, names, points, start, now, q, v=None):
+        """Replace the running trajectory (refused as `check` says). `q`, `v`: current
+        positions/velocities of the controller's joints (controller order). Returns the
+        number of points accepted."""
+        with_vel = self.check(names, points)
+        names = list(names)
+        q = np.asarray(q, dtype=float)
+        v = np.zeros_like(q) if v is None else np.asarray(v, dtype=float)
+        cols = [self.joint_names.index(n) for n in names]
+        times, pos, vel = [], [], []
+        for p in points:
+            times.append(float(p.time_from_start))
             row = q.copy()
             row[cols] = np.asarray(p.positions, dtype=float)
-            if not np.all(np.isfinite(row)):
-                raise TrajectoryError(f'point {i}: positions must be finite')
-            times.append(t)
             pos.append(np.clip(row, self.lower, self.upper))
             if with_vel:
                 vrow = np.zeros_like(q)
@@ -148,3 +177,4 @@ class TrajectoryFollower:
             out = ((2 * s3 - 3 * s2 + 1) * p0 + (s3 - 2 * s2 + s) * m0
                    + (-2 * s3 + 3 * s2) * p1 + (s3 - s2) * m1)
         return np.minimum(np.maximum(out, self.lower), self.upper)
+

@@ -2,10 +2,14 @@
 
 It stands in for the uBot-6 drivers through the robot's own topics (docs/INTERFACES.md):
 
-Subscribes:  /cmd_vel (geometry_msgs/Twist)
+Subscribes:  /cmd_vel (geometry_msgs/TwistStamped, as Jazzy's diff_drive_controller;
+             `base_command_type: twist` for geometry_msgs/Twist; topic
+             `base_command_topic`)
              /torso_controller/joint_trajectory, /left_arm_controller/joint_trajectory,
              /right_arm_controller/joint_trajectory, /head_controller/joint_trajectory
              (trajectory_msgs/JointTrajectory)
+Actions:     /<controller>/follow_joint_trajectory (control_msgs/FollowJointTrajectory)
+             for the same four controllers
 Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /joint_states (sensor_msgs/JointState, 13 joints), /odom (nav_msgs/Odometry)
              /camera/image_raw (sensor_msgs/Image), /camera/camera_info (reliable: a
@@ -27,6 +31,13 @@ renderer is still busy with the previous frame, the simulation waits: every fram
 drawn, simulation time just runs slower than asked for. Rendering stays in the render
 thread (MuJoCo's GL context belongs to the thread that rendered first): a reset's new
 camera is first used, and the old one closed, there.
+
+The four controllers behave as Jazzy's joint_trajectory_controller (topic and action):
+a trajectory without points, or one that leaves out some of the controller's joints, is
+refused with the controller's own error; a new trajectory replaces the running one; a
+goal ends SUCCESSFUL once its trajectory ended with the joints within its goal tolerance,
+aborts on a path or goal tolerance violation or a preemption, and a cancel holds the
+joints where they are (`joint_trajectory_follower`, `controller_goals`).
 
 Commands are checked before they reach the world: non-finite numbers, unknown joints,
 sizes that disagree, oversized trajectories and start stamps from the past or the far
@@ -50,15 +61,19 @@ import numpy as np
 import pinocchio as pin
 import rclpy
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion, Twist
+from control_msgs.action import FollowJointTrajectory
+from geometry_msgs.msg import Point, Pose, Quaternion
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
-from abp_common import input_checks, names, qos
+from abp_common import base_command, input_checks, names, qos
 from abp_common.health import NodeHealth
 from abp_common.input_checks import Rejected
 from abp_common.lifecycle import ManagedNode
@@ -71,12 +86,17 @@ from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import SimGroundTruth
 
 from . import config as cfg
+from .controller_goals import INVALID_GOAL, GoalEnd, GoalMonitor
 from .joint_trajectory_follower import TrajectoryError, TrajectoryPoint
 from .scenario import drawn_tags
 from .sim_timing import CameraSchedule, GroundTruthSchedule, Pacer, sim_seconds
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
+FOLLOW_JOINT_TRAJECTORY = '{controller}/follow_joint_trajectory'
+# Executor threads: each running FollowJointTrajectory goal keeps one (four controllers),
+# and the topics and services need the rest.
+EXECUTOR_THREADS = 8
 
 
 def _stamp(ns):
@@ -128,6 +148,10 @@ class SimBridgeNode(ManagedNode):
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
                                    for c in CONTROLLERS}
+        stopped = self.config.values['stopped_velocity_tolerance']
+        self._goal_monitors = {c: GoalMonitor(joints, stopped)
+                               for c, joints in CONTROLLERS.items()}
+        self._goal_ends = {}    # goal id -> (threading.Event, [GoalEnd]) of running goals
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._camera_info = self._camera_info_msg()
         self._joint_msg = JointState(name=list(self.kin.joint_names))
@@ -154,11 +178,23 @@ class SimBridgeNode(ManagedNode):
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
                                                qos.CAMERA_PUBLISHER)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
-        self.health.subscribe(Twist, names.CMD_VEL, self._on_cmd_vel, qos.RELIABLE)
+        values = self.config.values
+        self.health.subscribe(base_command.message_type(values['base_command_type']),
+                              values['base_command_topic'], self._on_cmd_vel, qos.RELIABLE)
         for controller in CONTROLLERS:
             self.health.subscribe(
                 JointTrajectory, names.trajectory_topic(controller),
                 lambda msg, c=controller: self._on_trajectory(c, msg), qos.RELIABLE)
+        goals = ReentrantCallbackGroup()
+        for controller in CONTROLLERS:
+            ActionServer(
+                self, FollowJointTrajectory, FOLLOW_JOINT_TRAJECTORY.format(controller=controller),
+                execute_callback=self._execute_goal,
+                goal_callback=lambda goal, c=controller: self._on_goal_request(c, goal),
+                handle_accepted_callback=lambda handle, c=controller:
+                    self._on_goal_accepted(c, handle),
+                cancel_callback=lambda handle, c=controller: self._on_goal_cancel(c, handle),
+                callback_group=goals)
         # ~/reset_world: names.RESET_WORLD for the node named sim_bridge.
         self.create_service(Trigger, '~/reset_world', self._on_reset)
         self._frames = queue.Queue(maxsize=1)
@@ -215,11 +251,12 @@ class SimBridgeNode(ManagedNode):
     # -- commands ---------------------------------------------------------------------
     def _on_cmd_vel(self, msg):
         """Raises input_checks.Rejected for a bad command (NodeHealth counts it)."""
-        input_checks.point('cmd_vel linear', msg.linear)
-        input_checks.point('cmd_vel angular', msg.angular)
+        twist = base_command.twist_of(msg)
+        input_checks.point('cmd_vel linear', twist.linear)
+        input_checks.point('cmd_vel angular', twist.angular)
         try:
             with self._lock:
-                self.sim.set_cmd_vel(msg.linear.x, msg.angular.z)
+                self.sim.set_cmd_vel(twist.linear.x, twist.angular.z)
         except ValueError as err:
             raise Rejected('out_of_range', str(err)) from None
 
@@ -241,18 +278,116 @@ class SimBridgeNode(ManagedNode):
                 f'a {controller} trajectory arrived {late_s:.2f} s of simulation time after '
                 'its start stamp: it starts part-way along its path (stamp it further ahead '
                 'at this speed-up)', throttle_duration_sec=5.0)
-        points = [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
-                                  np.asarray(p.positions, dtype=float),
-                                  np.asarray(p.velocities, dtype=float)
-                                  if len(p.velocities) else None)
-                  for p in msg.points]
         try:
             with self._lock:
-                self.sim.set_trajectory(controller, list(msg.joint_names), points,
+                self.sim.set_trajectory(controller, list(msg.joint_names),
+                                        trajectory_points(msg),
                                         sim_seconds(stamp_ns, self._epoch_ns))
         except TrajectoryError as err:
             raise Rejected('malformed', str(err)) from None
         stamps.taken(msg.header.stamp)
+
+    # -- FollowJointTrajectory goals (as Jazzy's joint_trajectory_controller) ---------------
+    def _on_goal_request(self, controller, goal):
+        """Accept a goal the controller can follow; refuse the rest with its error."""
+        follower = self.sim.controllers[controller][0]
+        try:
+            check_trajectory(goal.trajectory, CONTROLLERS[controller])
+            follower.check(goal.trajectory.joint_names, trajectory_points(goal.trajectory))
+            for tolerance in (*goal.path_tolerance, *goal.goal_tolerance):
+                input_checks.finite('tolerance', [tolerance.position, tolerance.velocity])
+        except (Rejected, TrajectoryError) as err:
+            self.get_logger().error(f'{controller}: goal refused: {err}')
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_goal_accepted(self, controller, handle):
+        goal = handle.request
+        traj = goal.trajectory
+        goal_id = bytes(handle.goal_id.uuid)
+        done = (threading.Event(), [])
+        self._goal_ends[goal_id] = done
+        try:
+            stamp_ns = self._trajectory_stamps[controller].check(traj.header.stamp,
+                                                                 self._sim_now_ns())
+            with self._lock:
+                self.sim.set_trajectory(controller, list(traj.joint_names),
+                                        trajectory_points(traj),
+                                        sim_seconds(stamp_ns, self._epoch_ns))
+                follower = self.sim.controllers[controller][0]
+                preempted = self._goal_monitors[controller].start(
+                    goal_id, follower.end_time,
+                    path_tolerance=[(t.name, t.position) for t in goal.path_tolerance],
+                    goal_tolerance=[(t.name, t.position) for t in goal.goal_tolerance],
+                    velocity_tolerance=[(t.name, t.velocity) for t in goal.goal_tolerance],
+                    goal_time_tolerance=goal.goal_time_tolerance.sec
+                    + goal.goal_time_tolerance.nanosec * 1e-9)
+        except (Rejected, TrajectoryError, ValueError) as err:
+            preempted = None
+            done[1].append(GoalEnd(goal_id, 'aborted', INVALID_GOAL, str(err)))
+            done[0].set()
+        if preempted is not None:
+            self._end_goal(preempted)
+        handle.execute()
+
+    def _on_goal_cancel(self, controller, handle):
+        """As the controller: the goal ends canceled and the joints hold where they are."""
+        goal_id = bytes(handle.goal_id.uuid)
+        with self._lock:
+            end = self._goal_monitors[controller].cancel(goal_id)
+            if end is not None:
+                follower, idx = self.sim.controllers[controller]
+                follower.hold(self.sim.q[idx])
+        if end is not None:
+            self._end_goal(end)
+        return CancelResponse.ACCEPT
+
+    def _end_goal(self, end):
+        done = self._goal_ends.get(end.goal_id)
+        if done is not None:
+            done[1].append(end)
+            done[0].set()
+
+    def _execute_goal(self, handle):
+        """Wait (an executor thread of its own) until the simulation ends the goal."""
+        goal_id = bytes(handle.goal_id.uuid)
+        event, ends = self._goal_ends[goal_id]
+        while not event.wait(0.5):
+            if self._stop.is_set() or not self.context.ok():
+                break
+        self._goal_ends.pop(goal_id, None)
+        result = FollowJointTrajectory.Result()
+        if not ends:
+            result.error_code, result.error_string = INVALID_GOAL, 'the simulation stopped'
+            handle.abort()
+            return result
+        end = ends[0]
+        result.error_code, result.error_string = end.error_code, end.error_string
+        if end.status == 'succeeded':
+            handle.succeed()
+        elif end.status == 'canceled':
+            handle.canceled()
+        else:
+            handle.abort()
+        return result
+
+    def _judge_goals(self):
+        """Each tick: the verdict on every running goal (call with the lock held). An
+        aborted goal leaves its controller holding, as the controller does."""
+        sim = self.sim
+        ended = []
+        for controller, monitor in self._goal_monitors.items():
+            if monitor.active_goal is None:
+                continue
+            follower, idx = sim.controllers[controller]
+            q = sim.q[idx]
+            end = monitor.update(sim.time, q, sim.qd[idx], follower.sample(sim.time, q),
+                                 follower.end_time)
+            if end is not None:
+                if end.status == 'aborted':
+                    follower.hold(q)
+                ended.append(end)
+        return ended
 
     # -- the simulation thread --------------------------------------------------------
     def _sim_loop(self):
@@ -297,11 +432,14 @@ class SimBridgeNode(ManagedNode):
                 tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
                                   self._tag_miss_rng)
                 frame = _Frame(stamp, self.camera, self.camera.capture(sim, tags))
+            goal_ends = self._judge_goals()
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
                 gt = self._ground_truth_msg(stamp)
         self.health.latency(time.perf_counter() - started)
+        for end in goal_ends:
+            self._end_goal(end)
         if self._clock_pub is not None:
             self._clock_msg.clock = stamp
             self._clock_pub.publish(self._clock_msg)
@@ -409,6 +547,14 @@ class SimBridgeNode(ManagedNode):
 MAX_TRAJECTORY_POINTS = 100_000
 
 
+def trajectory_points(msg):
+    """The points of a trajectory_msgs/JointTrajectory for the followers."""
+    return [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
+                            np.asarray(p.positions, dtype=float),
+                            np.asarray(p.velocities, dtype=float) if len(p.velocities) else None)
+            for p in msg.points]
+
+
 def check_trajectory(msg, controller_joints):
     """Raise input_checks.Rejected for a JointTrajectory no controller should follow:
     oversized, joints the controller does not have, point sizes that disagree with the
@@ -419,7 +565,12 @@ def check_trajectory(msg, controller_joints):
     if unknown:
         raise Rejected('unknown_id', f'joints {[n[:40] for n in unknown[:3]]} are not '
                                      f'controlled here ({", ".join(controller_joints)})')
-    if msg.points and not msg.joint_names:
+    if not msg.points:
+        # Jazzy's joint_trajectory_controller: "Empty trajectory received." It does not
+        # stop: a stop is a one-point hold at the current position.
+        raise Rejected('empty', 'Empty trajectory received. (a stop is a one-point hold at '
+                                'the current position)')
+    if not msg.joint_names:
         raise Rejected('empty', 'trajectory points without joint names')
     n = len(msg.joint_names)
     for i, p in enumerate(msg.points):
@@ -435,6 +586,7 @@ def check_trajectory(msg, controller_joints):
 def main(args=None):
     failed = []  # a simulation or render thread failed: exit code 1
     code = run_node('sim_bridge', SimBridgeNode, args,
+                    make_executor=lambda: MultiThreadedExecutor(num_threads=EXECUTOR_THREADS),
                     on_exit=lambda node: failed.append(node.stop()))
     return 1 if any(failed) else code
 

@@ -82,8 +82,9 @@ def test_odometry_noise_moves_the_true_base_only(kin):
 def test_joint_follows_a_trajectory(kin):
     world = make_world(kin)
     start = world.q[kin.joint_index('head_pan_joint')]
-    world.set_trajectory('head_controller', ['head_pan_joint'],
-                         [TrajectoryPoint(1.0, np.array([start + 0.5]))])
+    tilt = world.q[kin.joint_index('head_tilt_joint')]
+    world.set_trajectory('head_controller', ['head_pan_joint', 'head_tilt_joint'],
+                         [TrajectoryPoint(1.0, np.array([start + 0.5, tilt]))])
     run(world, 0.5)
     half = world.q[kin.joint_index('head_pan_joint')]
     assert half == pytest.approx(start + 0.25, abs=0.02)

@@ -54,19 +54,38 @@ def test_trajectory_interpolates_clamps_replaces_and_holds():
     assert np.allclose(f.sample(11.0, q), [0.2, 0.5])
     assert np.allclose(f.sample(12.0, q), [0.4, 0.75])  # 2.0 clamped to the limit 1.0
     assert np.allclose(f.sample(20.0, q), [0.6, 1.0]) and not f.active
-    # Replace mid-way; a partial message holds the other joint.
+    # Replace mid-way.
     q = np.array([0.3, 0.3])
-    f.set_trajectory(['a'], [P(1.0, [-0.7])], start=0.0, now=20.0, q=q)
+    f.set_trajectory(['a', 'b'], [P(1.0, [-0.7, 0.3])], start=0.0, now=20.0, q=q)
     assert np.allclose(f.sample(20.5, q), [-0.2, 0.3])
-    # No points: stop and hold where it is.
-    f.set_trajectory([], [], start=0.0, now=20.5, q=[-0.2, 0.3])
+    # A stop is a one-point hold where the joints are (time_from_start 0: at once).
+    f.set_trajectory(['a', 'b'], [P(0.0, [-0.2, 0.3], [0.0, 0.0])], start=0.0, now=20.5,
+                     q=[-0.2, 0.3])
+    assert np.allclose(f.sample(20.5, q), [-0.2, 0.3])
     assert np.allclose(f.sample(25.0, q), [-0.2, 0.3]) and not f.active
 
 
+@pytest.mark.parametrize('names, points, refusal', [
+    (['a', 'b'], [], 'Empty trajectory received.'),
+    (['a'], [P(1.0, [0.5])], "Joints on incoming trajectory don't match"),
+    ([], [P(1.0, [])], 'Empty joint names'),
+    (['a', 'c'], [P(1.0, [0.5, 0.5])], "Incoming joint c doesn't match"),
+    (['a', 'b'], [P(1.0, [0.5, 0.5], [0.1, 0.0])], 'last trajectory point is not zero'),
+    (['a', 'b'], [P(1.0, [0.5, 0.5]), P(1.0, [0.6, 0.6])], 'not strictly increasing'),
+])
+def test_the_controller_refuses_what_jazzys_joint_trajectory_controller_refuses(
+        names, points, refusal):
+    f = TrajectoryFollower(('a', 'b'), [-1.0, -1.0], [1.0, 1.0])
+    f.hold([0.1, 0.2])
+    with pytest.raises(TrajectoryError, match=refusal):
+        f.set_trajectory(names, points, start=0.0, now=1.0, q=[0.1, 0.2])
+    # A refused message changes nothing: the controller keeps holding.
+    assert np.allclose(f.sample(2.0, [0.0, 0.0]), [0.1, 0.2]) and not f.active
+
 def test_trajectory_cubic_with_velocities_and_stamp_in_the_past():
     f = TrajectoryFollower(('a',), [-5.0], [5.0])
-    f.set_trajectory(['a'], [P(1.0, [1.0], [0.0]), P(2.0, [2.0], [1.0])], start=0.0, now=0.0,
-                     q=[0.0], v=[0.0])
+    f.set_trajectory(['a'], [P(1.0, [1.0], [0.0]), P(2.0, [2.0], [1.0]), P(3.0, [2.5], [0.0])],
+                     start=0.0, now=0.0, q=[0.0], v=[0.0])
     # Hermite: position and velocity match at the knots.
     assert f.sample(1.0, [0])[0] == pytest.approx(1.0)
     eps = 1e-4
@@ -79,10 +98,10 @@ def test_trajectory_cubic_with_velocities_and_stamp_in_the_past():
 
 
 @pytest.mark.parametrize('names, points, match', [
-    (['a', 'x'], [P(1, [0, 0])], 'not controlled'),
-    (['a'], [P(1, [0]), P(1, [1])], 'increase'),
-    (['a'], [P(1, [0, 1])], 'positions'),
-    (['a'], [P(-1, [0])], '>= 0'),
+    (['a', 'x'], [P(1, [0, 0])], "doesn't match"),
+    (['a', 'b'], [P(1, [0, 0]), P(1, [1, 1])], 'increasing'),
+    (['a', 'b'], [P(1, [0])], 'positions'),
+    (['a', 'b'], [P(-1, [0, 0])], '>= 0'),
     (['a', 'a'], [P(1, [0, 0])], 'duplicate'),
 ])
 def test_trajectory_refuses_bad_messages(names, points, match):
@@ -132,7 +151,9 @@ def test_orbit_odometry_noise_moves_the_true_pose_only(kin):
 def test_joints_respect_velocity_limits(kin):
     sim = make_sim(kin)
     i = kin.joint_index('head_pan_joint')
-    sim.set_trajectory('head_controller', ['head_pan_joint'], [P(0.1, [1.5])])
+    tilt = sim.q[kin.joint_index('head_tilt_joint')]
+    sim.set_trajectory('head_controller', ['head_pan_joint', 'head_tilt_joint'],
+                       [P(0.1, [1.5, tilt])])
     for _ in range(5):
         sim.step()
     assert sim.q[i] == pytest.approx(5 * 0.02 * kin.velocity_limits[i])  # 3 rad/s

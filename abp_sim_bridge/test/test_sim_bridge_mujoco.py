@@ -59,9 +59,10 @@ def test_mujoco_world_publishes_state_images_and_follows_a_trajectory(ros_proces
     pan0 = last.position[last.name.index('head_pan_joint')]
     # 3 s of simulation time ahead (1.5 s of wall time): it must arrive before it starts.
     start = ns(last.header.stamp) + 3_000_000_000
-    traj = JointTrajectory(joint_names=['head_pan_joint'])
+    tilt0 = last.position[last.name.index('head_tilt_joint')]
+    traj = JointTrajectory(joint_names=['head_pan_joint', 'head_tilt_joint'])
     traj.header.stamp = to_time(start)
-    traj.points = [JointTrajectoryPoint(positions=[pan0 + 0.4],
+    traj.points = [JointTrajectoryPoint(positions=[pan0 + 0.4, tilt0],
                                         time_from_start=to_duration(1.0))]
     pub.publish(traj)
     done = start + 2_000_000_000

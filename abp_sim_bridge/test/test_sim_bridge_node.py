@@ -16,7 +16,7 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from builtin_interfaces.msg import Duration, Time  # noqa: E402
-from geometry_msgs.msg import Twist  # noqa: E402
+from geometry_msgs.msg import TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
@@ -29,6 +29,7 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E
 
 from abp_common import qos  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
+from abp_description.controllers import CONTROLLERS  # noqa: E402
 from abp_description.frames import (  # noqa: E402
     base_to_world,
     rotation_from_quaternion,
@@ -247,9 +248,9 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     # (paced on /clock) for 6 s of it. On a loaded machine this node may publish late and
     # the base stop between two commands: what is checked holds whatever the gaps.
     v, w = 0.2, 0.3
-    pub = t.node.create_publisher(Twist, '/cmd_vel', 10)
-    cmd = Twist()
-    cmd.linear.x, cmd.angular.z = v, w
+    pub = t.node.create_publisher(TwistStamped, '/cmd_vel', 10)
+    cmd = TwistStamped()
+    cmd.twist.linear.x, cmd.twist.angular.z = v, w
     assert t.spin_until(lambda: pub.get_subscription_count() > 0, 10)
     t.msgs['odom'].clear()
     t.msgs['joint_states'].clear()
@@ -275,8 +276,8 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     # by itself. The arc's position tells how far the drive turned (even if a late drive
     # command arrives after the wait above), the rest of the heading is the pulse's.
     w_p = 0.6
-    pulse = Twist()
-    pulse.angular.z = w_p
+    pulse = TwistStamped()
+    pulse.twist.angular.z = w_p
     pulse_sent = sim_now()
     n_before = len(t.msgs['odom'])
 
@@ -362,9 +363,20 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     traj.points = [JointTrajectoryPoint(positions=[0.6, -0.4], time_from_start=to_duration(1.0)),
                    JointTrajectoryPoint(positions=[5.0, 0.2], time_from_start=to_duration(2.0))]
     head.publish(traj)
-    elbow = JointTrajectory(joint_names=['left_elbow_joint'])  # partial: the others hold
-    elbow.points = [JointTrajectoryPoint(positions=[-1.0], time_from_start=to_duration(2.0)),
-                    JointTrajectoryPoint(positions=[-0.2], time_from_start=to_duration(10.0))]
+    arm_joints = list(CONTROLLERS['left_arm_controller'])
+    arm_now = [pos(t.last('joint_states'), j) for j in arm_joints]
+
+    def arm_at(elbow):
+        return [elbow if j == 'left_elbow_joint' else q for j, q in zip(arm_joints, arm_now)]
+    # As Jazzy's controller: a trajectory naming only some of its joints is refused.
+    partial = JointTrajectory(joint_names=['left_elbow_joint'])
+    partial.points = [JointTrajectoryPoint(positions=[0.5], time_from_start=to_duration(0.5))]
+    arm.publish(partial)
+    elbow = JointTrajectory(joint_names=arm_joints)
+    elbow.points = [JointTrajectoryPoint(positions=arm_at(-1.0),
+                                         time_from_start=to_duration(2.0)),
+                    JointTrajectoryPoint(positions=arm_at(-0.2),
+                                         time_from_start=to_duration(10.0))]
     arm.publish(elbow)
     s = start * 1e-9
     assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) * 1e-9 > s + 3.0, 30)
@@ -385,11 +397,30 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     last = t.last('joint_states')
     assert pos(last, 'left_shoulder_pitch_joint') == 0.0
     assert -1.0 < pos(last, 'left_elbow_joint') < 0.0
-    # A new trajectory replaces the running one; no points = stop and hold. It takes
-    # effect when it reaches the bridge (under load, more than a fixed sim time after the
-    # last state received here): from the first state with the elbow at rest, it holds.
+    # A trajectory without points is refused (Jazzy's "Empty trajectory received."): the
+    # elbow goes on. A stop is a one-point hold at the current position: it replaces the
+    # running trajectory when it reaches the bridge (under load, more than a fixed sim
+    # time after the last state received here): from the first state with the elbow at
+    # rest, it holds.
+    def elbow_below(limit):
+        return pos(t.last('joint_states'), 'left_elbow_joint') < limit
+    # A new trajectory replaces the running (or finished) one: a slow move to -1.2.
+    slow = JointTrajectory(joint_names=arm_joints)
+    slow.points = [JointTrajectoryPoint(positions=arm_at(-1.2), time_from_start=to_duration(40.0))]
+    from_here = pos(t.last('joint_states'), 'left_elbow_joint')
+    arm.publish(slow)
+    assert t.spin_until(lambda: elbow_below(from_here - 0.02), 30), 'not replaced'
+    arm.publish(JointTrajectory(joint_names=arm_joints))
+    moving_from = pos(t.last('joint_states'), 'left_elbow_joint')
+    assert t.spin_until(lambda: elbow_below(moving_from - 0.05), 30), \
+        'an empty trajectory stopped the elbow'
     n_before = len(t.msgs['joint_states'])
-    arm.publish(JointTrajectory(joint_names=['left_elbow_joint']))
+    here = t.last('joint_states')
+    hold = JointTrajectory(joint_names=arm_joints)
+    hold.points = [JointTrajectoryPoint(positions=[pos(here, j) for j in arm_joints],
+                                        velocities=[0.0] * len(arm_joints),
+                                        time_from_start=to_duration(0.0))]
+    arm.publish(hold)
 
     def stopped():
         return next((m for m in t.msgs['joint_states'][n_before:]
@@ -399,8 +430,8 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     assert t.spin_until(lambda: ns(t.last('joint_states').header.stamp) > t0 + 2e9, 30)
     held = [pos(m, 'left_elbow_joint') for m in t.msgs['joint_states']
             if ns(m.header.stamp) >= t0]
-    assert np.ptp(held) < 1e-9, 'the elbow did not hold after an empty trajectory'
-    assert held[0] > -1.0 + 1e-3  # it stopped before reaching the first point
+    assert np.ptp(held) < 1e-9, 'the elbow did not hold after a one-point hold'
+    assert held[0] > -1.2 + 1e-3  # it stopped before the end of the slow move
 
 
 # -- camera -------------------------------------------------------------------------------

@@ -5,32 +5,44 @@ estimate: hypotheses[0].object_pose, in base_link or any URDF frame) and feeds t
 `RobotState`; malformed messages (abp_common.input_checks: non-finite values, sizes that
 disagree, frames not in the URDF, stamps from the past or the future) are rejected and
 counted in the node's /diagnostics (`node.health`, abp_common.health). `RobotCommands`
-publishes /cmd_vel and the JointTrajectory of every controller of
-`abp_description.controllers.CONTROLLERS` (/<controller>/joint_trajectory). Names are
-relative (abp_common.names).
+commands the base (TwistStamped or Twist) and every controller of
+`abp_description.controllers.CONTROLLERS` (FollowJointTrajectory goals on
+<controller>/follow_joint_trajectory, or JointTrajectory on <controller>/joint_trajectory),
+as Jazzy's ros2_control controllers take them. Names are relative (abp_common.names).
 """
 
+import threading
 import time
 
 import numpy as np
+from action_msgs.msg import GoalStatus
 from builtin_interfaces.msg import Duration as DurationMsg
-from geometry_msgs.msg import Twist
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
 from nav_msgs.msg import Odometry
+from rclpy.action import ActionClient
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.duration import Duration as RclpyDuration
 from sensor_msgs.msg import JointState
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from abp_common import input_checks, names
+from abp_common import base_command, input_checks, names
 from abp_common.input_checks import Rejected
 from abp_common.qos import RELIABLE
+from abp_common.server_handshake import ask_action_server
 from abp_description.controllers import CONTROLLERS
 from abp_description.frames import yaw_of_quaternion
 from abp_description.kinematics import look_at
 from abp_msgs.msg import AspectObservation
 
+from .skill_checks import Refused
+
 HEAD_CONTROLLER = 'head_controller'
 HEAD_MOVE_S = 0.2   # time_from_start of a head aiming point
+FOLLOW_JOINT_TRAJECTORY = '{controller}/follow_joint_trajectory'
+HANDSHAKE_TIMEOUT_S = 2.0
+STATUS_NAMES = {GoalStatus.STATUS_ABORTED: 'aborted', GoalStatus.STATUS_CANCELED: 'canceled',
+                GoalStatus.STATUS_SUCCEEDED: 'succeeded'}
 
 
 def duration_msg(seconds):
@@ -95,43 +107,97 @@ class RobotInputs:
 
 
 class RobotCommands:
-    """/cmd_vel and the controllers' trajectories; `moved` tells whether anything was sent
-    since the last `reset_moved()` (a failed goal that moved nothing needs no stop)."""
+    """The base command and the controllers' trajectories, as Jazzy's controllers take
+    them; `moved` tells whether anything was sent since the last `reset_moved()` (a failed
+    goal that moved nothing needs no stop).
+
+    The base: geometry_msgs/TwistStamped (diff_drive_controller) or Twist on
+    `base_command_topic` (abp_common.base_command). Trajectories: one
+    control_msgs/FollowJointTrajectory goal per controller (`trajectory_interface` action,
+    or auto where the controller offers the action), so that goal tolerances and aborts
+    reach the skill (`trajectory_outcome`), else trajectory_msgs/JointTrajectory on the
+    controller's topic. A stop is a one-point hold at the measured position on every
+    controller (what the controller itself does after a cancel): a trajectory without
+    points is refused by Jazzy's joint_trajectory_controller and never sent."""
 
     def __init__(self, node):
         self.node = node
         self.moved = False
-        self._cmd_pub = node.create_publisher(Twist, names.CMD_VEL, RELIABLE)
+        self._base_kind = node.param('base_command_type')
+        self._base_topic = node.param('base_command_topic')
+        self._cmd_pub = node.create_publisher(base_command.message_type(self._base_kind),
+                                              self._base_topic, RELIABLE)
         self._traj_pubs = {
             name: node.create_publisher(JointTrajectory, names.trajectory_topic(name), RELIABLE)
             for name in CONTROLLERS
         }
+        self._interface = node.param('trajectory_interface')
+        self._clients = {} if self._interface == 'topic' else {
+            name: ActionClient(node, FollowJointTrajectory,
+                               FOLLOW_JOINT_TRAJECTORY.format(controller=name),
+                               callback_group=node.callback_group)
+            for name in CONTROLLERS}
+        self._answering = set()     # controllers whose action server answered a handshake
+        self._goals = {}            # controller -> _Goal of the last trajectory sent by action
 
     def reset_moved(self):
         self.moved = False
 
+    # -- the base ----------------------------------------------------------------------
+    def _publish_base(self, v, w):
+        self._cmd_pub.publish(base_command.command(
+            self._base_kind, v, w, self.node.get_clock().now().to_msg()))
+
     def velocity(self, v, w):
         """Drive the base at v (m/s), ω (rad/s)."""
-        cmd = Twist()
-        cmd.linear.x, cmd.angular.z = float(v), float(w)
         self.moved = True
-        self._cmd_pub.publish(cmd)
+        self._publish_base(v, w)
 
     def stop_base(self):
-        self._cmd_pub.publish(Twist())
+        self._publish_base(0.0, 0.0)
 
+    def base_listener_problem(self):
+        """Why the base command reaches nobody (a sentence), or None: no subscriber on the
+        topic, or subscribers of the other message type (DDS would carry nothing and say
+        nothing)."""
+        node = self.node
+        topic = node.resolve_topic_name(self._base_topic)
+        endpoints = node.get_subscriptions_info_by_topic(topic)
+        mismatch = base_command.type_mismatch(self._base_kind, topic, endpoints)
+        if mismatch and self._cmd_pub.get_subscription_count() == 0:
+            return mismatch
+        if not endpoints:
+            return f'nothing subscribes to {topic}, the base command topic'
+        return None
+
+    # -- the controllers ---------------------------------------------------------------
     def stop_motion(self):
-        """Zero base velocity and hold every controller (an empty trajectory)."""
+        """Zero base velocity and hold every controller where its joints are: a one-point
+        hold at the measured position on each controller's topic, which replaces whatever
+        trajectory runs, and a cancel of each running goal (on which the controller holds
+        too), so that the stop does not depend on the action server answering."""
         for _ in range(3):
-            self._cmd_pub.publish(Twist())
+            self.stop_base()
+        for goal in self._goals.values():
+            goal.cancel()
+        q = self.node.state.latest_joints()
+        if q is None:       # no joint state ever: nothing to hold at (and nothing moved)
+            return
         for name, joints in CONTROLLERS.items():
-            self._traj_pubs[name].publish(JointTrajectory(joint_names=list(joints)))
+            idx = [self.node.kin.joint_index(j) for j in joints]
+            msg = JointTrajectory(joint_names=list(joints))
+            msg.points.append(JointTrajectoryPoint(
+                positions=q[idx].tolist(), velocities=[0.0] * len(idx),
+                time_from_start=duration_msg(0.0)))
+            self._traj_pubs[name].publish(msg)
 
-    def send_trajectory(self, trajectory, start_delay_s):
+    def send_trajectory(self, trajectory, start_delay_s, tolerance=None, settle_s=None):
         """Send a SampledTrajectory over BODY_JOINTS to the four controllers at once, with
         one common start stamp `start_delay_s` of wall time ahead, in clock time at the
         clock's measured rate (docs/INTERFACES.md: the controllers then start together;
-        0 = zero stamp, start on receipt). Returns the start time (node clock, s)."""
+        0 = zero stamp, start on receipt). By action, each goal asks the joints to end
+        within `tolerance` (rad) of the end, at most `settle_s` after it. Returns the start
+        time (node clock, s)."""
         self.moved = True
         start_delay_s *= self.node.clock_rate.rate()
         now = self.node.get_clock().now()
@@ -148,11 +214,12 @@ class RobotCommands:
                 msg.points.append(JointTrajectoryPoint(
                     positions=p.tolist(), velocities=v.tolist(), accelerations=a.tolist(),
                     time_from_start=duration_msg(t)))
-            self._traj_pubs[name].publish(msg)
+            self._send(name, msg, tolerance, settle_s)
         return start
 
     def aim_head(self, q, cube_base):
-        """Point the camera at `cube_base` (base_link) from the joints `q`."""
+        """Point the camera at `cube_base` (base_link) from the joints `q` (on the topic:
+        a stream of short aiming moves, each replacing the last, needs no result)."""
         node = self.node
         with node.fk_lock:
             q_look, _ = look_at(node.kin, q, cube_base)
@@ -163,6 +230,101 @@ class RobotCommands:
             positions=q_look[idx].tolist(), velocities=[0.0] * len(idx),
             time_from_start=duration_msg(HEAD_MOVE_S)))
         self._traj_pubs[HEAD_CONTROLLER].publish(msg)
+        self._goals.pop(HEAD_CONTROLLER, None)
+
+    def trajectory_outcome(self):
+        """The controllers' verdict on the last trajectory sent by action: None while any
+        goal runs (or when the last trajectory went by topic: see `by_action`), else
+        (True, '') when every goal succeeded, or (False, reason)."""
+        goals = self._goals.values()
+        if not goals or any(g.outcome is None for g in goals):
+            return None
+        failed = [f'{g.controller}: {g.outcome[1]}' for g in goals if not g.outcome[0]]
+        return (False, '; '.join(failed)) if failed else (True, '')
+
+    @property
+    def by_action(self):
+        """Whether the last trajectory went to every controller by action."""
+        return len(self._goals) == len(CONTROLLERS)
+
+    def _uses_action(self, name):
+        if self._interface == 'topic':
+            return False
+        client = self._clients[name]
+        if name not in self._answering:
+            action = self.node.resolve_topic_name(FOLLOW_JOINT_TRAJECTORY.format(controller=name))
+            if not client.server_is_ready():
+                if self._interface == 'action':
+                    raise Refused(f'{action} has no action server (trajectory_interface: '
+                                  'action)')
+                return False
+            # A goal sent before the server has discovered this client can be lost
+            # (abp_common.server_handshake): ask once, then trust it.
+            answered = threading.Event()
+            ask_action_server(client).add_done_callback(lambda _f: answered.set())
+            if not answered.wait(HANDSHAKE_TIMEOUT_S):
+                if self._interface == 'action':
+                    raise Refused(f'{action} did not answer within {HANDSHAKE_TIMEOUT_S:g} s')
+                return False
+            self._answering.add(name)
+        return True
+
+    def _send(self, name, msg, tolerance=None, settle_s=None):
+        if not self._uses_action(name):
+            self._goals.pop(name, None)
+            self._traj_pubs[name].publish(msg)
+            return
+        goal = FollowJointTrajectory.Goal(trajectory=msg)
+        if tolerance is not None:
+            # Positions only: a joint pressed against the cube may keep a small tremor, and
+            # the topic path judges arrival by position alone too (-1 erases velocity).
+            goal.goal_tolerance = [JointTolerance(name=j, position=float(tolerance),
+                                                  velocity=-1.0) for j in msg.joint_names]
+        if settle_s is not None:
+            goal.goal_time_tolerance = duration_msg(max(float(settle_s), 1e-3))
+        self._goals[name] = _Goal(name, self._clients[name].send_goal_async(goal))
+
+
+class _Goal:
+    """One FollowJointTrajectory goal and, once known, its outcome (ok, reason)."""
+
+    def __init__(self, controller, sent):
+        self.controller = controller
+        self.outcome = None
+        self._lock = threading.Lock()
+        self._handle = None
+        self._cancel = False
+        sent.add_done_callback(self._on_response)
+
+    def cancel(self):
+        """Cancel the goal, now or as soon as the controller has accepted it."""
+        with self._lock:
+            self._cancel = True
+            handle = self._handle
+        if handle is not None and self.outcome is None:
+            handle.cancel_goal_async()
+
+    def _on_response(self, future):
+        handle = future.result()
+        if handle is None or not handle.accepted:
+            self.outcome = (False, 'goal rejected by the controller (see its log)')
+            return
+        with self._lock:
+            self._handle = handle
+            cancel = self._cancel
+        if cancel:
+            handle.cancel_goal_async()
+        handle.get_result_async().add_done_callback(self._on_result)
+
+    def _on_result(self, future):
+        response = future.result()
+        result = response.result
+        if response.status == GoalStatus.STATUS_SUCCEEDED and \
+                result.error_code == FollowJointTrajectory.Result.SUCCESSFUL:
+            self.outcome = (True, '')
+        else:
+            status = STATUS_NAMES.get(response.status, str(response.status))
+            self.outcome = (False, f'{status}: {result.error_string or result.error_code}')
 
 
 __all__ = ['RobotCommands', 'RobotInputs']

@@ -4,9 +4,12 @@ A goal is accepted, then claimed (`SkillClaim`: one skill at a time across proce
 busy goal aborts with reason "rejected: busy: ..."), planned by the node's motion planner
 (`plans.SkillPlanner`, refused with a reason when it cannot be done) and run phase by
 phase: base motions closed-loop on /odom (`base_motion.OrbitTracker`), arm phases sent as
-one trajectory to every controller and waited for until the joints arrive
-(`skill_checks.ArrivalCheck`). Cancelling stops the robot and ends the goal canceled; a
-timeout, lost odometry or joints that do not arrive abort it (and stop the robot). Odometry
+one trajectory to every controller and waited for until the joints arrive: by
+FollowJointTrajectory, the controllers' results (goal tolerance within settle_timeout);
+by topic, `skill_checks.ArrivalCheck` on /joint_states. Cancelling stops the robot (a
+one-point hold on every controller, robot_topics) and ends the goal canceled; a timeout,
+lost odometry, a controller's abort or joints that do not arrive abort it (and stop the
+robot). Odometry
 that is late (older than `max_state_age` of node time, which at a high sim speed-up is a
 short wall time) first stops the base and pauses the drive until it is recent again;
 only when it stays late for `state_wait_timeout` wall seconds does the drive abort
@@ -131,6 +134,9 @@ class SkillActionServers:
             yaw_tolerance=np.radians(node.param('orbit_yaw_tolerance_deg')),
             position_tolerance=node.param('orbit_position_tolerance'),
             settle_time=max(node.param('settle_timeout'), 0.5))
+        problem = node.commands.base_listener_problem()
+        if problem:
+            return 'abort', f'the base cannot be driven: {problem}'
         t0 = node.now()
         feedback = FeedbackThrottle()
         gap = OdometryGap(node.param('state_wait_timeout'))
@@ -180,9 +186,11 @@ class SkillActionServers:
         """Send one phase trajectory and wait for it to end and the joints to arrive
         (`pressing`: a phase whose hands press into the cube, contact_goal_tolerance)."""
         node = self.node
-        t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'))
-        feedback = FeedbackThrottle()
         tolerance = node.param('contact_goal_tolerance' if pressing else 'goal_tolerance')
+        t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'),
+                                           tolerance, node.param('settle_timeout'))
+        feedback = FeedbackThrottle()
+        by_action = node.commands.by_action
         arrival = ArrivalCheck(name, trajectory.joint_names, trajectory.end, trajectory.duration,
                                tolerance, node.param('settle_timeout'))
         idx = [node.kin.joint_index(n) for n in trajectory.joint_names]
@@ -194,7 +202,13 @@ class SkillActionServers:
             if feedback.due(t):
                 frac = min(max(t, 0.0), trajectory.duration) / max(trajectory.duration, 1e-6)
                 self._feedback(skill, goal_handle, name, progress_of(frac))
-            if arrival.ended(t):
+            if by_action:
+                # The controllers judge arrival (goal tolerance, goal_time_tolerance).
+                outcome = node.commands.trajectory_outcome()
+                if outcome is not None:
+                    ok, reason = outcome
+                    return None if ok else ('abort', f'{name}: {reason}')
+            elif arrival.ended(t):
                 done, reason = arrival.check(t, node.joints()[idx])
                 if done:
                     return ('abort', reason) if reason else None

@@ -9,14 +9,24 @@ restart), the node's own timing parameters (`NODE_SPECS`), every `SkillConfig` f
 
 from dataclasses import fields
 
-from abp_common import names
+from abp_common import base_command, names
 from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
 from abp_description.controllers import SIDES
 
 from .base_motion import BaseLimits
 from .plans import SkillConfig
 
+TRAJECTORY_INTERFACES = ('auto', 'action', 'topic')
+
 NODE_SPECS = (
+    *base_command.SPECS,
+    ParamSpec('trajectory_interface', STRING, 'auto',
+              'How arm, torso and head trajectories reach the controllers: action = '
+              'control_msgs/FollowJointTrajectory on <controller>/follow_joint_trajectory '
+              '(goal tolerances, aborts and results reach the skill); topic = '
+              'trajectory_msgs/JointTrajectory on <controller>/joint_trajectory (arrival '
+              'judged from /joint_states); auto = the action where the controller offers '
+              'it, else the topic.', read_only=True, choices=TRAJECTORY_INTERFACES),
     ParamSpec('max_estimate_age', DOUBLE, 5.0,
               'Seconds after which a cube pose estimate is too old to act on.', (0.1, 3600.0)),
     ParamSpec('max_state_age', DOUBLE, 1.0,

@@ -3,13 +3,17 @@
 Run as a process by the node tests until the sim bridge exists. It implements the
 command/sensor contract of docs/INTERFACES.md and nothing else (no cube, no physics):
 
-- /cmd_vel (Twist) is integrated into /odom as a unicycle; the base stops when no command
-  arrives for `--cmd-timeout` s (default 0.5; a long one means only a zero command stops it).
+- /cmd_vel (TwistStamped, as Jazzy's diff_drive_controller) is integrated into /odom as a
+  unicycle; the base stops when no command arrives for `--cmd-timeout` s (default 0.5; a
+  long one means only a zero command stops it).
 - /{torso,left_arm,right_arm,head}_controller/joint_trajectory are followed by linear
   interpolation of the points (time_from_start counts from header.stamp, a zero stamp
   meaning on receipt; the joints hold until then);
-  a new trajectory replaces the running one; an empty one holds the current position;
-  positions are clamped to the URDF limits.
+  a new trajectory replaces the running one; as Jazzy's joint_trajectory_controller, one
+  without points or without every joint of the controller is refused (logged as an error
+  and counted in the line "refused trajectories: N"), so a stop must be a one-point hold;
+  positions are clamped to the URDF limits. It offers no FollowJointTrajectory action: the
+  skills fall back to the topics here (the sim bridge offers both).
 - /joint_states (all 13 joints, position and velocity) and /odom are published at 50 Hz.
 - `--block-arms`: the first trajectory of each arm controller stops halfway through its
   time (as if the arm hit something) and the arm holds there; once both arms hold, the
@@ -25,7 +29,7 @@ import time
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import Twist
+from geometry_msgs.msg import TwistStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
@@ -68,7 +72,8 @@ class FakeRobot(Node):
         self.cmd = (0.0, 0.0)
         self.cmd_time = -1e9
         self.active = {}   # controller -> (t0, joint indices, times, positions)
-        self.create_subscription(Twist, '/cmd_vel', self.on_cmd, RELIABLE)
+        self.refused = 0
+        self.create_subscription(TwistStamped, '/cmd_vel', self.on_cmd, RELIABLE)
         for name in CONTROLLERS:
             self.create_subscription(JointTrajectory, f'/{name}/joint_trajectory',
                                      lambda msg, n=name: self.on_traj(n, msg), RELIABLE)
@@ -80,7 +85,7 @@ class FakeRobot(Node):
 
     def on_cmd(self, msg):
         with self.lock:
-            self.cmd = (msg.linear.x, msg.angular.z)
+            self.cmd = (msg.twist.linear.x, msg.twist.angular.z)
             self.cmd_time = time.monotonic()
 
     def ros_now(self):
@@ -90,12 +95,15 @@ class FakeRobot(Node):
         now = self.ros_now()
         stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
         start = stamp if stamp > 0 else now   # zero stamp: start on receipt
+        if not msg.points or sorted(msg.joint_names) != sorted(CONTROLLERS[name]):
+            self.refused += 1
+            self.get_logger().error(
+                f'{name}: ' + ('Empty trajectory received.' if not msg.points else
+                               "Joints on incoming trajectory don't match the controller "
+                               'joints.') + f' refused trajectories: {self.refused}')
+            return
         with self.lock:
             idx = [self.kin.joint_index(j) for j in msg.joint_names]
-            if not msg.points:
-                self.active.pop(name, None)   # hold where it is
-                self.qd[idx] = 0.0
-                return
             times = np.array([p.time_from_start.sec + 1e-9 * p.time_from_start.nanosec
                               for p in msg.points])
             pos = np.array([p.positions for p in msg.points], dtype=float)

@@ -24,7 +24,7 @@ except ImportError:
                 allow_module_level=True)
 
 from action_msgs.msg import GoalStatus  # noqa: E402
-from geometry_msgs.msg import Twist  # noqa: E402
+from geometry_msgs.msg import TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
@@ -74,6 +74,17 @@ def start_robot(ros_processes, *args):
     return proc
 
 
+def hold_or_size(msg):
+    """'hold' for a one-point trajectory at time 0 with zero velocities (a stop, as
+    Jazzy's controllers take it), else the number of points."""
+    if len(msg.points) == 1:
+        point = msg.points[0]
+        if point.time_from_start.sec == 0 and point.time_from_start.nanosec == 0 \
+                and not any(point.velocities):
+            return 'hold'
+    return len(msg.points)
+
+
 class Harness:
     """The test's own node: a perception stand-in (publishes the cube estimate from the
     fake odometry) and recorders of the robot commands."""
@@ -93,11 +104,11 @@ class Harness:
         self.obs_pub = self.node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                                   RELIABLE)
         self.node.create_subscription(Odometry, '/odom', self._on_odom, RELIABLE)
-        self.node.create_subscription(Twist, '/cmd_vel', self._on_cmd, RELIABLE)
+        self.node.create_subscription(TwistStamped, '/cmd_vel', self._on_cmd, RELIABLE)
         for c in CONTROLLERS:
             self.node.create_subscription(
                 JointTrajectory, f'/{c}/joint_trajectory',
-                lambda msg, c=c: self.trajectories[c].append((time.monotonic(), len(msg.points))),
+                lambda msg, c=c: self.trajectories[c].append((time.monotonic(), hold_or_size(msg))),
                 RELIABLE)
         self.node.create_timer(0.2, self._publish_estimate)
 
@@ -109,7 +120,7 @@ class Harness:
         self.odom_stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
 
     def _on_cmd(self, msg):
-        self.cmd_vel.append((time.monotonic(), msg.linear.x, msg.angular.z))
+        self.cmd_vel.append((time.monotonic(), msg.twist.linear.x, msg.twist.angular.z))
 
     def _publish_estimate(self):
         if self.cube_odom is None or self.odom is None:
@@ -305,7 +316,8 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     assert res.result.reason.startswith('rejected: busy') and 'orbit' in res.result.reason
     assert orbit.status == GoalStatus.STATUS_EXECUTING
 
-    # Cancel mid-motion: zero /cmd_vel and a hold (empty trajectory) on every controller.
+    # Cancel mid-motion: zero /cmd_vel and a one-point hold on every controller (Jazzy's
+    # joint_trajectory_controller refuses a trajectory without points).
     # Each is waited for as an event (DDS delivers them when the loaded machine lets it);
     # what is checked is the order: no motion command after the stop.
     n_cmd = len(tester.cmd_vel)
@@ -321,8 +333,10 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
         return next((i for i, c in enumerate(after) if c[1:] == (0.0, 0.0)), None)
     assert tester.spin(lambda: stop_index() is not None, 10), 'no zero /cmd_vel after cancel'
     for controller in CONTROLLERS:
-        assert tester.spin(lambda c=controller: 0 in [
+        assert tester.spin(lambda c=controller: 'hold' in [
             n for _, n in tester.trajectories[c][n_traj[c]:]], 10), f'no hold sent to {controller}'
+    assert all(n != 0 for c in CONTROLLERS for _, n in tester.trajectories[c]), \
+        'a trajectory without points was sent'
 
     def still(odom):
         return abs(odom[3].linear.x) < 1e-9 and abs(odom[3].angular.z) < 1e-9

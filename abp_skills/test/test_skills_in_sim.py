@@ -12,16 +12,23 @@ artag_detector and aspect_matcher on the rendered camera images.
 import os
 import time
 
+import numpy as np
 import pytest
 
 rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
+from action_msgs.msg import GoalStatus, GoalStatusArray  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import qos_profile_action_status_default  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 
 from abp_common.qos import LATCHED, RELIABLE  # noqa: E402
 from abp_common.server_handshake import wait_until_answering  # noqa: E402
+from abp_description.controllers import BODY_JOINTS, CONTROLLERS  # noqa: E402
+from abp_description.kinematics import RobotKinematics  # noqa: E402
 from abp_msgs.action import Flip, Lift, Orbit, Push  # noqa: E402
 from abp_msgs.msg import AspectObservation, SimGroundTruth  # noqa: E402
 from abp_msgs.srv import CheckFeasibility  # noqa: E402
@@ -47,12 +54,12 @@ def sim_graph(ros_processes, rclpy_context):
     node.create_subscription(AspectObservation, '/abp/aspect_observation',
                              lambda m: m.hypotheses and estimates.append(m), RELIABLE)
 
-    def start(mass_index):
+    def start(mass_index, speedup=5.0):
         sim_time = ['-p', 'use_sim_time:=true']
         ros_processes.start([executable('abp_sim_bridge', 'sim_bridge'), '--ros-args',
                              '-p', 'world:=rules', '-p', f'face_tags:={FACE_TAGS}',
                              '-p', f'mass_index:={mass_index}',
-                             '-p', 'speedup:=5.0',
+                             '-p', f'speedup:={speedup}',
                              # Body +x towards the robot: the initial state is (up 4, yaw 0).
                              '-p', 'cube_yaw:=3.141592653589793'])
         ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',
@@ -166,3 +173,51 @@ def test_flip_rolls_a_uniform_cube_and_orbit_turns_the_view(sim_graph, spin):
     after = truth_after(executor, spin, truth)
     assert after.up_face == before.up_face
     assert after.yaw_step == (before.yaw_step + 2) % 8
+
+
+def test_a_cancelled_skill_holds_every_joint_within_0_3_s_of_sim_time(sim_graph, spin):
+    """A LIFT cancelled while its arms move: every joint the controllers drive is still,
+    for good, 0.3 s of simulation time after the cancel was sent. The sim bridge's
+    controllers behave as Jazzy's (a trajectory without points is refused, a stop is a
+    one-point hold); the skills reach them by FollowJointTrajectory, and none of the
+    trajectories on the topics has no points. Real time (speed-up 1), as on a robot."""
+    node, executor, truth, estimates = sim_graph(UNIFORM, speedup=1.0)
+    states, sizes, statuses = [], [], []
+    node.create_subscription(JointState, '/joint_states', states.append, RELIABLE)
+    for controller in CONTROLLERS:
+        node.create_subscription(JointTrajectory, f'/{controller}/joint_trajectory',
+                                 lambda m: sizes.append(len(m.points)), RELIABLE)
+        node.create_subscription(
+            GoalStatusArray, f'/{controller}/follow_joint_trajectory/_action/status',
+            lambda m: statuses.extend(m.status_list), qos_profile_action_status_default)
+    settled_truth(node, executor, spin, truth, estimates)
+    client = ActionClient(node, Lift, '/abp/skills/lift')
+    assert wait_until_answering(client, lambda done, s: spin(executor, done, s), 60)
+    feedback = []
+    send = client.send_goal_async(Lift.Goal(), feedback_callback=lambda f: feedback.append(
+        f.feedback))
+    assert spin(executor, send.done, 30) and send.result().accepted
+    body = [RobotKinematics().joint_index(j) for j in BODY_JOINTS]
+
+    def moving():
+        return states and np.max(np.abs(np.asarray(states[-1].velocity)[body])) > 0.05
+    assert spin(executor, lambda: any(f.phase != 'approach' for f in feedback) and moving(),
+                60), 'the arms never moved'
+    cancel_sent = stamp_s(states[-1])   # what this node has seen: the sim is not earlier
+    handle = send.result()
+    cancel = handle.cancel_goal_async()
+    result = handle.get_result_async()
+    assert spin(executor, lambda: cancel.done() and result.done(), 30)
+    assert result.result().status == GoalStatus.STATUS_CANCELED
+    held_from = cancel_sent + 0.3
+    assert spin(executor, lambda: stamp_s(states[-1]) > held_from + 1.5, 30)
+    after = np.array([np.asarray(m.position)[body] for m in states
+                      if stamp_s(m) >= held_from])
+    drift = np.max(np.ptp(after, axis=0))
+    assert drift < 1e-6, f'joints still moving 0.3 s after the cancel: {drift:.2e} rad'
+    assert statuses, 'the skills did not use FollowJointTrajectory'
+    assert sizes and 0 not in sizes, f'a trajectory without points was sent: {sizes}'
+
+
+def stamp_s(msg):
+    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec

@@ -39,7 +39,7 @@ ament_index = pytest.importorskip('ament_index_python.packages')
 
 from builtin_interfaces.msg import Duration, Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from geometry_msgs.msg import Point32, Twist  # noqa: E402
+from geometry_msgs.msg import Point32, TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
@@ -106,13 +106,13 @@ NAN, INF = float('nan'), float('inf')
 
 def twist_variants():
     def nan_linear(_):
-        msg = Twist()
-        msg.linear.x = NAN
+        msg = TwistStamped()
+        msg.twist.linear.x = NAN
         return msg
 
     def inf_angular(_):
-        msg = Twist()
-        msg.angular.z = -INF
+        msg = TwistStamped()
+        msg.twist.angular.z = -INF
         return msg
     return [('non_finite', nan_linear), ('non_finite', inf_angular)]
 
@@ -138,6 +138,8 @@ def trajectory_variants(controller):
         ('unknown_id', lambda now: traj(now, names_=['no_such_joint'], positions=[0.0])),
         ('size_mismatch', lambda now: traj(now, positions=[0.0] * (n + 2))),
         ('empty', lambda now: traj(now, names_=[], positions=[])),
+        # Jazzy's controllers refuse a trajectory without points (a stop is a hold).
+        ('empty', lambda now: traj(now, points=0)),
         ('oversized', lambda now: traj(now, names_=joints * 40, positions=[0.0] * (n * 40))),
         ('stamp_future', lambda now: traj(now, stamp=future(now))),
         ('stamp_past', lambda now: traj(now, stamp=past(now))),
@@ -325,7 +327,7 @@ def sweep_topics(model_set):
     """topic -> (message type, QoS of the graph's subscribers, variants, receivers)."""
     cam = camera_intrinsics()
     topics = {
-        names.CMD_VEL: (Twist, qos.RELIABLE, twist_variants(), ('sim_bridge',)),
+        names.CMD_VEL: (TwistStamped, qos.RELIABLE, twist_variants(), ('sim_bridge',)),
         names.IMAGE: (Image, qos.RELIABLE, image_variants(cam), ('artag_detector',)),
         names.CAMERA_INFO: (CameraInfo, qos.RELIABLE, camera_info_variants(cam),
                             ('artag_detector',)),

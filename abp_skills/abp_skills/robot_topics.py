@@ -11,6 +11,7 @@ commands the base (TwistStamped or Twist) and every controller of
 as Jazzy's ros2_control controllers take them. Names are relative (abp_common.names).
 """
 
+import queue
 import threading
 import time
 
@@ -132,10 +133,11 @@ class RobotCommands:
             for name in CONTROLLERS
         }
         self._interface = node.param('trajectory_interface')
+        self._calls = None if self._interface == 'topic' else ClientCalls(node)
         self._clients = {} if self._interface == 'topic' else {
             name: ActionClient(node, FollowJointTrajectory,
                                FOLLOW_JOINT_TRAJECTORY.format(controller=name),
-                               callback_group=node.callback_group)
+                               callback_group=self._calls.group)
             for name in CONTROLLERS}
         self._answering = set()     # controllers whose action server answered a handshake
         self._goals = {}            # controller -> _Goal of the last trajectory sent by action
@@ -261,7 +263,8 @@ class RobotCommands:
             # A goal sent before the server has discovered this client can be lost
             # (abp_common.server_handshake): ask once, then trust it.
             answered = threading.Event()
-            ask_action_server(client).add_done_callback(lambda _f: answered.set())
+            self._calls.run(lambda: ask_action_server(client).add_done_callback(
+                lambda _f: answered.set()))
             if not answered.wait(HANDSHAKE_TIMEOUT_S):
                 if self._interface == 'action':
                     raise Refused(f'{action} did not answer within {HANDSHAKE_TIMEOUT_S:g} s')
@@ -282,19 +285,53 @@ class RobotCommands:
                                                   velocity=-1.0) for j in msg.joint_names]
         if settle_s is not None:
             goal.goal_time_tolerance = duration_msg(max(float(settle_s), 1e-3))
-        self._goals[name] = _Goal(name, self._clients[name].send_goal_async(goal))
+        client = self._clients[name]
+        tracked = _Goal(name, self._calls)
+        self._goals[name] = tracked
+        self._calls.run(lambda: client.send_goal_async(goal).add_done_callback(
+            tracked.on_response))
+
+
+class ClientCalls:
+    """Runs action-client requests inside the clients' own mutually exclusive callback
+    group. Jazzy's rclpy ActionClient files a request's future under its sequence number
+    only after sending it: sent from another thread while the executor runs, a quick
+    response can be taken first and is then dropped ("Ignoring unexpected goal response"),
+    and the goal's future never completes. In the clients' group, no response of theirs
+    is handled while a request is being filed."""
+
+    def __init__(self, node):
+        self.group = MutuallyExclusiveCallbackGroup()
+        self._pending = queue.SimpleQueue()
+        self._logger = node.get_logger()
+        self._guard = node.create_guard_condition(self._run_pending, callback_group=self.group)
+
+    def run(self, call):
+        self._pending.put(call)
+        self._guard.trigger()
+
+    def _run_pending(self):
+        while True:
+            try:
+                call = self._pending.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                call()
+            except Exception as error:  # noqa: BLE001 -- one failed request is reported
+                self._logger.error(f'action client request failed: {error!r}')
 
 
 class _Goal:
     """One FollowJointTrajectory goal and, once known, its outcome (ok, reason)."""
 
-    def __init__(self, controller, sent):
+    def __init__(self, controller, calls):
         self.controller = controller
         self.outcome = None
+        self._calls = calls
         self._lock = threading.Lock()
         self._handle = None
         self._cancel = False
-        sent.add_done_callback(self._on_response)
 
     def cancel(self):
         """Cancel the goal, now or as soon as the controller has accepted it."""
@@ -302,9 +339,9 @@ class _Goal:
             self._cancel = True
             handle = self._handle
         if handle is not None and self.outcome is None:
-            handle.cancel_goal_async()
+            self._calls.run(handle.cancel_goal_async)
 
-    def _on_response(self, future):
+    def on_response(self, future):
         handle = future.result()
         if handle is None or not handle.accepted:
             self.outcome = (False, 'goal rejected by the controller (see its log)')
@@ -313,8 +350,8 @@ class _Goal:
             self._handle = handle
             cancel = self._cancel
         if cancel:
-            handle.cancel_goal_async()
-        handle.get_result_async().add_done_callback(self._on_result)
+            self._calls.run(handle.cancel_goal_async)
+        self._calls.run(lambda: handle.get_result_async().add_done_callback(self._on_result))
 
     def _on_result(self, future):
         response = future.result()

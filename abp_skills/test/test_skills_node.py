@@ -432,3 +432,20 @@ def test_bad_parameters_are_refused_clearly(override, expected):
     assert result.returncode == 2, result.stderr
     assert 'configuration error' in result.stderr and expected in result.stderr
     assert 'Traceback' not in result.stderr
+
+
+def test_a_base_command_of_the_other_type_is_refused_with_both_types_named(ros_processes,
+                                                                          tester):
+    # The robot takes TwistStamped (Jazzy's diff_drive_controller); this server is set
+    # to publish Twist on the same topic: DDS would carry nothing and say nothing.
+    start_robot(ros_processes)
+    start_server(ros_processes, 'orbit_server', base_command_type='twist')
+    tester.cube_odom = (0.4, 0.0)
+    assert tester.spin(lambda: tester.odom is not None, 20)
+    assert tester.wait_until_feasibility('ORBIT_P90', lambda a: a[0])[0]
+    _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=90.0))
+    res = tester.result(orbit, 30)
+    assert res.status == GoalStatus.STATUS_ABORTED
+    reason = res.result.reason
+    assert 'geometry_msgs/msg/Twist' in reason and 'TwistStamped' in reason \
+        and 'base_command_type' in reason, reason

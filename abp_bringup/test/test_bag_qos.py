@@ -54,10 +54,12 @@ def static_transform():
     return TFMessage(transforms=[transform])
 
 
-def record_short_graph(ros_processes, node, spin_executor, bag):
+def record_short_graph(ros_processes, node, bag, late_volatile_belief=False):
     """Record a latched /abp/belief and /tf_static (published before the recorder starts),
     a volatile reliable /abp/executed_action and a best-effort /camera/camera_info, from
-    this test's node; the publishers are gone when this returns."""
+    this test's node; the publishers are gone when this returns. With
+    `late_volatile_belief`, a volatile /abp/belief publisher joins once the recorder
+    subscribed transient local: the recorder must say it cannot record it."""
     publishers = [
         node.create_publisher(Belief, names.BELIEF, qos.LATCHED),
         node.create_publisher(TFMessage, '/tf_static', qos.LATCHED),
@@ -77,6 +79,11 @@ def record_short_graph(ros_processes, node, spin_executor, bag):
         'publisher matched on /camera/camera_info'], 60)
     publishers[2].publish(ExecutedAction(action='PUSH', sequence=1, success=True))
     ros_processes.wait_for_line(recorder, 'first message on /abp/executed_action', 30)
+    if late_volatile_belief:
+        publishers.append(node.create_publisher(Belief, names.BELIEF, qos.RELIABLE))
+        ros_processes.wait_for_line(
+            recorder, 'a publisher on /abp/belief offers a QoS the recording subscription '
+            'cannot match (DURABILITY)', 30)
     os.killpg(recorder.pid, signal.SIGINT)
     assert recorder.wait(timeout=20) == 0
     for publisher in publishers:
@@ -95,10 +102,10 @@ def as_version_9(profile_v8):
 
 
 def test_recorded_bag_carries_the_offered_qos_as_rosbag2_jazzy_writes_it(
-        ros_processes, tester, spin, tmp_path):
-    node, executor = tester
+        ros_processes, tester, tmp_path):
+    node, _ = tester
     bag = tmp_path / 'graph'
-    record_short_graph(ros_processes, node, executor, bag)
+    record_short_graph(ros_processes, node, bag, late_volatile_belief=True)
 
     # (a) every topic has its publisher's profile; latched ones are transient local.
     metadata = yaml.safe_load((bag / 'metadata.yaml').read_text())
@@ -147,7 +154,7 @@ def test_player_replays_a_latched_topic_to_a_late_subscriber(ros_processes, test
                                                              tmp_path):
     node, executor = tester
     bag = tmp_path / 'graph'
-    record_short_graph(ros_processes, node, executor, bag)
+    record_short_graph(ros_processes, node, bag)
 
     player = ros_processes.start([executable('abp_bringup', 'bag_player'), str(bag), '--hold'])
     lines = ''.join(ros_processes.wait_for_line(player, 'holding the publishers', 60))

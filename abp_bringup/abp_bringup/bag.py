@@ -9,6 +9,10 @@ Topics in a bag are absolute, as rosbag2 records them: a graph under the namespa
 /robot1 gives /robot1/abp/belief. The graph's own names are relative
 (abp_common.names); `graph_topics(namespace)` resolves them, `graph_name(topic)` maps
 an absolute topic back to the graph's name (for its QoS).
+
+Each topic carries the QoS profiles its publishers offered (`offered_qos_profiles`, see
+bag_qos), as rosbag2 records them: `ros2 bag play` and abp's bag_player replay a latched
+topic latched. Bags recorded before abp stored QoS have none (`offered_qos`: []).
 """
 
 import pathlib
@@ -31,8 +35,13 @@ GRAPH_TOPICS = {
     names.JOINT_STATES: 'sensor_msgs/msg/JointState',
     names.ODOM: 'nav_msgs/msg/Odometry',
     names.CAMERA_INFO: 'sensor_msgs/msg/CameraInfo',
+    # tf: absolute, as tf2_ros publishes and reads them (a namespaced robot remaps them).
+    '/tf': 'tf2_msgs/msg/TFMessage',
+    '/tf_static': 'tf2_msgs/msg/TFMessage',
 }
 IMAGE_TOPICS = {names.IMAGE: 'sensor_msgs/msg/Image'}
+# The graph's latched topics: only for replaying bags that store no QoS (the recorder
+# takes durability from what the publishers offer).
 LATCHED_TOPICS = {names.BELIEF, names.GROUND_TRUTH}
 SENSOR_TOPICS = {names.IMAGE, names.CAMERA_INFO}
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
@@ -93,9 +102,15 @@ def typestore():
 
 
 class BagWriter:
-    """Writes serialized messages to a new rosbag2 bag (the path must not exist)."""
+    """Writes serialized messages to a new rosbag2 bag (the path must not exist).
 
-    def __init__(self, path, topics, storage='mcap', store=None):
+    `topics` ({topic: msgtype}) are the topics the bag may hold. Those in `offered_qos`
+    ({topic: [Qos]}) are added at once with their publishers' profiles, the others with
+    `add_topic` when their publishers are known (as rosbag2 does on discovery), or, with
+    `add_all=True`, at once without QoS."""
+
+    def __init__(self, path, topics, storage='mcap', store=None, offered_qos=None,
+                 add_all=False):
         path = pathlib.Path(path)
         if path.exists():
             raise BagError(f'bag {path} already exists: choose a new directory '
@@ -106,13 +121,26 @@ class BagWriter:
         unknown = sorted(t for t in topics.values() if t not in self.store.types)
         if unknown:
             raise BagError(f"no message definition for {', '.join(unknown)}")
+        self.topics = dict(topics)
         self._writer = Writer(path, version=9, storage_plugin=STORAGE[storage])
         self._writer.open()
-        self._connections = {
-            topic: self._writer.add_connection(topic, msgtype, typestore=self.store)
-            for topic, msgtype in topics.items()
-        }
+        self._connections = {}
+        offered_qos = offered_qos or {}
+        for topic in topics:
+            if add_all or topic in offered_qos:
+                self.add_topic(topic, offered_qos.get(topic, ()))
         self.count = 0
+
+    def add_topic(self, topic, offered_qos=()):
+        """Add `topic` (one of `topics`) with the QoS profiles its publishers offer."""
+        if topic in self._connections:
+            raise BagError(f'topic {topic} is already in the bag')
+        self._connections[topic] = self._writer.add_connection(
+            topic, self.topics[topic], typestore=self.store,
+            offered_qos_profiles=list(offered_qos))
+
+    def added(self, topic):
+        return topic in self._connections
 
     def write(self, topic, timestamp_ns, data):
         self._writer.write(self._connections[topic], int(timestamp_ns), bytes(data))
@@ -122,16 +150,29 @@ class BagWriter:
         self._writer.close()
 
 
-def bag_topics(path):
-    """{topic: msgtype} of every connection in the bag."""
+def _connections(path):
     path = pathlib.Path(path)
     if not path.exists():
         raise BagError(f'bag {path} does not exist')
     try:
         with AnyReader([path], default_typestore=typestore()) as reader:
-            return {c.topic: c.msgtype for c in reader.connections}
+            return list(reader.connections)
     except Exception as error:
         raise BagError(f'cannot read bag {path}: {error}') from error
+
+
+def bag_topics(path):
+    """{topic: msgtype} of every connection in the bag."""
+    return {c.topic: c.msgtype for c in _connections(path)}
+
+
+def offered_qos(path):
+    """{topic: [Qos]}: the QoS profiles recorded per topic ([] when the bag has none)."""
+    profiles = {}
+    for connection in _connections(path):
+        profiles.setdefault(connection.topic, []).extend(
+            getattr(connection.ext, 'offered_qos_profiles', None) or [])
+    return profiles
 
 
 def read_bag(path, topics=None):

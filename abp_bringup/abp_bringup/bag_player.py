@@ -1,10 +1,15 @@
 """`bag_player`: replays a rosbag2 bag (MCAP or sqlite3) into the graph.
 
-    bag_player BAG [--topics T ...] [--rate R | --fast] [--wait-for TOPIC ...]
+    bag_player BAG [--topics T ...] [--rate R | --fast] [--wait-for TOPIC ...] [--hold]
                [--ros-args ...]
 
 Messages are published serialized, as recorded, on the bag's (absolute) topics, with
-the QoS each topic uses in the graph. Topic names given here may be relative: they are
+the QoS stored in the bag for each topic, as `ros2 bag play` does (bag_qos.playback_offer):
+a latched (transient local) topic is replayed latched, so a subscriber that joins after
+the message was replayed still gets it. A bag without stored QoS (recorded before abp
+stored it) or with disagreeing publishers on a topic is replayed with the QoS the graph
+uses on that topic, and the player says so. --hold keeps the publishers, and so the
+latched topics' last messages, until Ctrl-C. Topic names given here may be relative: they are
 resolved in the player's namespace (`--ros-args -r __ns:=/robot1`). --rate 1 keeps the
 recorded timing; --fast publishes as fast as the subscribers take it. DDS keeps the
 order within a topic only, so with --fast a subscriber that falls behind may take
@@ -24,8 +29,13 @@ from rclpy.utilities import remove_ros_args
 
 from abp_common import names
 
-from .bag import BagError, bag_topics, read_bag
-from .bag_recorder_node import message_class, topic_qos
+from . import bag_qos
+from .bag import BagError, bag_topics, offered_qos, read_bag
+from .bag_ros import graph_qos, message_class, to_rclpy_qos
+
+# rosbag2's replay history depth (rmw_qos_profile_default): a late subscriber of a latched
+# topic gets up to this many of its last messages.
+REPLAY_DEPTH = 10
 
 
 def parse_args(argv):
@@ -42,10 +52,30 @@ def parse_args(argv):
                         'for the reliable subscribers to acknowledge every message')
     parser.add_argument('--gap', type=float, default=0.002,
                         help='seconds between messages with --fast (lets DDS deliver in order)')
+    parser.add_argument('--hold', action='store_true',
+                        help='after the last message, keep publishing latched topics to late '
+                        'subscribers until Ctrl-C')
     args = parser.parse_args(argv)
     if args.rate <= 0:
         parser.error('--rate must be > 0')
     return args
+
+
+def replay_qos(topic, profiles):
+    """The QoSProfile to replay `topic` with, from its recorded `profiles`; the graph's
+    QoS (with a line on stderr saying why) when the bag has no single profile."""
+    offer = bag_qos.playback_offer(profiles)
+    if offer is not None:
+        depth = max(REPLAY_DEPTH, graph_qos(topic).depth)
+        print(f'[bag_player] {topic}: recorded QoS ({bag_qos.describe(offer)})', flush=True)
+        return to_rclpy_qos(offer, depth)
+    fallback = graph_qos(topic)
+    why = ('its publishers offered different QoS' if profiles else
+           'the bag stores no QoS for it (recorded before abp stored QoS)')
+    print(f"[bag_player] {topic}: {why}; replaying with the graph's QoS "
+          f'({fallback.reliability.name.lower()}, {fallback.durability.name.lower()})',
+          file=sys.stderr, flush=True)
+    return fallback
 
 
 def play(publishers, messages, rate, fast, gap):
@@ -82,8 +112,10 @@ def main(argv=None):
                                f"{', '.join(sorted(topics))})")
             topics = {t: topics[t] for t in args.topics}
         # All publishers first, so that nothing is published before it is matched.
-        publishers = {topic: node.create_publisher(message_class(msgtype), topic,
-                                                   topic_qos(topic))
+        profiles = offered_qos(args.bag)
+        publishers = {topic: node.create_publisher(
+                          message_class(msgtype), topic,
+                          replay_qos(topic, profiles.get(topic, [])))
                       for topic, msgtype in topics.items()}
         deadline = time.monotonic() + args.wait_timeout
         for topic in args.wait_for:
@@ -100,12 +132,18 @@ def main(argv=None):
         # A reliable writer destroyed before its readers acknowledged would lose the tail.
         unacked = [topic for topic, publisher in publishers.items()
                    if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout))]
-        print(f'[bag_player] replayed {count} messages from {args.bag}')
+        print(f'[bag_player] replayed {count} messages from {args.bag}', flush=True)
         if unacked:
             print(f'[bag_player] not acknowledged within {args.wait_timeout} s on '
                   f"{', '.join(unacked)}: the last messages may not have been taken",
                   file=sys.stderr)
             return 1
+        if args.hold:
+            print('[bag_player] holding the publishers until Ctrl-C', flush=True)
+            try:
+                rclpy.spin(node)  # nothing to execute: DDS serves late subscribers
+            except (KeyboardInterrupt, ExternalShutdownException):
+                pass  # the end a holding player waits for
         return 0
     except BagError as error:
         print(f'[bag_player] {error}', file=sys.stderr)

@@ -21,7 +21,15 @@ ament_index = pytest.importorskip('ament_index_python.packages')
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from abp_belief.population import robot_set  # noqa: E402
-from abp_bringup.bag import BagError, BagWriter, bag_topics, deserialize, read_bag, typestore  # noqa: E402
+from abp_bringup.bag import (  # noqa: E402
+    BagError,
+    BagWriter,
+    bag_topics,
+    deserialize,
+    offered_qos,
+    read_bag,
+    typestore,
+)
 from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
@@ -43,10 +51,11 @@ def stamp_ns(message):
     return message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
 
 
-def write_episode_after_reset(recorded, path):
+def write_episode_after_reset(recorded, path, profiles):
     """Write to a new bag at `path` the recorded episode from the belief's reset on: the
     aspect observations stamped after the last step-0 belief before the first executed
-    action, and every executed action. Returns the message count per topic."""
+    action, and every executed action, with their recorded QoS `profiles`. Returns the
+    message count per topic."""
     store = typestore()
     first_action = next(t for topic, _, t, _ in recorded if topic == '/abp/executed_action')
     resets = [deserialize(store, data, msgtype) for topic, msgtype, t, data in recorded
@@ -54,7 +63,8 @@ def write_episode_after_reset(recorded, path):
     reset_ns = stamp_ns([b for b in resets if b.step == 0][-1])
     topics = {'/abp/aspect_observation': 'abp_msgs/msg/AspectObservation',
               '/abp/executed_action': 'abp_msgs/msg/ExecutedAction'}
-    writer = BagWriter(path, topics, store=store)
+    writer = BagWriter(path, topics, store=store,
+                       offered_qos={t: profiles[t] for t in topics})
     counts = dict.fromkeys(topics, 0)
     for topic, msgtype, timestamp, data in recorded:
         if topic not in topics or (topic == '/abp/aspect_observation' and stamp_ns(
@@ -114,7 +124,10 @@ def test_record_then_replay_reproduces_the_identification(ros_processes, rclpy_c
     # only: the frames stamped after the reset belief (stamped with the newest input the
     # belief node had taken) and the executed actions.
     episode = tmp_path / 'episode-after-reset'
-    replayed = write_episode_after_reset(recorded, episode)
+    profiles = offered_qos(bag)
+    assert all(profiles[t] for t in topics), profiles  # every recorded topic has its QoS
+    replayed = write_episode_after_reset(recorded, episode, profiles)
+    assert offered_qos(episode)['/abp/executed_action'] == profiles['/abp/executed_action']
     assert replayed['/abp/executed_action'] == result['actions']
 
     # Replay observations and actions into a fresh belief node at the recorded pace.
@@ -166,16 +179,24 @@ def test_bad_bags_are_refused_clearly(tmp_path):
 def test_recorder_under_a_namespace_records_its_absolute_topics(ros_processes, rclpy_context,
                                                                  spin, tmp_path):
     bag = tmp_path / 'ns'
-    recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
-                                    '-r', '__ns:=/robot1', '-p', f'output:={bag}'])
-    ros_processes.wait_for_line(recorder, 'recording 9 topics', 30)
     node = rclpy.create_node('namespace_checker', context=rclpy_context)
     executor = SingleThreadedExecutor(context=rclpy_context)
     executor.add_node(node)
+    # A belief under /robot1 and one at the root: the recorder records only its own.
+    node.create_publisher(Belief, '/robot1/abp/belief', qos.LATCHED).publish(Belief(step=4))
+    node.create_publisher(Belief, '/abp/belief', qos.LATCHED).publish(Belief(step=5))
+    recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
+                                    '-r', '__ns:=/robot1', '-p', f'output:={bag}'])
+    ros_processes.wait_for_lines(recorder, ['recording 11 topics',
+                                            'first message on /robot1/abp/belief'], 30)
     assert spin(executor, lambda: node.count_subscribers('/robot1/abp/belief') > 0, 30)
     assert node.count_subscribers('/abp/belief') == 0
     os.killpg(recorder.pid, signal.SIGINT)
     assert recorder.wait(timeout=20) == 0
-    assert bag_topics(bag)['/robot1/abp/belief'] == 'abp_msgs/msg/Belief'
+    # Topics no publisher offered are not in the bag (they would have no QoS).
+    assert bag_topics(bag) == {'/robot1/abp/belief': 'abp_msgs/msg/Belief'}
+    assert offered_qos(bag)['/robot1/abp/belief'][0].durability.name == 'TRANSIENT_LOCAL'
+    store = typestore()
+    assert [deserialize(store, m[3], m[1]).step for m in read_bag(bag)] == [4]
     executor.shutdown()
     node.destroy_node()

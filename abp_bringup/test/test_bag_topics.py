@@ -11,6 +11,7 @@ from abp_bringup.bag import (
     graph_topics,
     recorded_topics,
 )
+from abp_common import names
 from abp_common.param_spec import check_all
 
 
@@ -21,14 +22,19 @@ def test_graph_topics_are_absolute_in_the_recorders_namespace():
     assert '/camera/image_raw' in graph_topics(images=True)
     robot = graph_topics('robot1', images=True)
     assert robot['/robot1/abp/tag_detections'] == 'abp_msgs/msg/TagDetectionArray'
-    assert set(robot) == {'/robot1/' + name for name in {**GRAPH_TOPICS, **IMAGE_TOPICS}}
+    assert set(robot) == {names.absolute(name, 'robot1')
+                          for name in {**GRAPH_TOPICS, **IMAGE_TOPICS}}
+    # tf is absolute, as tf2_ros publishes it: a namespace does not move it.
+    assert robot['/tf_static'] == 'tf2_msgs/msg/TFMessage'
+    assert '/robot1/tf_static' not in robot
     assert graph_topics('/robot1/') == graph_topics('robot1')
 
 
 @pytest.mark.parametrize('topic, name', [
     ('/abp/belief', 'abp/belief'), ('/robot1/abp/belief', 'abp/belief'),
     ('/a/b/camera/image_raw', 'camera/image_raw'), ('/odom', 'odom'),
-    ('/wheel_odom', ''), ('/abp/other', ''),
+    ('/wheel_odom', ''), ('/abp/other', ''), ('/tf_static', '/tf_static'),
+    ('/robot1/tf_static', ''),
 ])
 def test_graph_name_maps_a_bag_topic_back(topic, name):
     assert graph_name(topic) == name

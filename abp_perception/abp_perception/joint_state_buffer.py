@@ -79,6 +79,13 @@ class JointStateBuffer:
                 del times[:cut]
                 del values[:cut]
 
+    def newest_of(self, names):
+        """The newest stamp that every stamped joint of `names` has reached (None when none
+        of them is stamped)."""
+        lasts = [self._times[n][-1] for n in names
+                 if self._times.get(n) and n not in self._unstamped]
+        return min(lasts) if lasts else None
+
     def span_ns(self, name):
         """(first, last) stamp buffered for a joint, or None."""
         times = self._times.get(name)

@@ -12,6 +12,13 @@ Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the im
              header stamp; poses in `base_frame` once a joint state has arrived, else in
              the camera frame)
 
+Camera drivers as they are (docs/CAMERA.md): a frame_id is resolved to a URDF frame by
+`frame_map` (`camera_model.FrameMap`); `image_is_rectified` takes P as the intrinsics and
+leaves D out; the encodings of `image_encodings` are converted; the camera pose is the
+forward kinematics of the joint state interpolated at the image stamp from the last
+`joint_state_buffer_s` of joint_states (`joint_state_buffer.JointStateBuffer`; only the
+joints that move the camera frame must be buffered around the stamp).
+
 Topic names are relative (abp_common.names): under a namespace the node reads and
 writes that namespace's topics. Parameters: `node_parameters.DETECTOR_SPECS`.
 Between full-frame passes (every `full_frame_every` frames) the last frame's tags are
@@ -24,9 +31,10 @@ Inputs are rejected, never crash the node, counted in /diagnostics by topic and 
 how many so far. Frames: no camera_info yet (`no_camera_info`), a size other than
 camera_info's, both sizes named (`size`), size, step and data length that disagree
 (`size_mismatch`), an unsupported encoding or compressed format (`encoding`), a
-compressed payload that does not decode (`decode`), a frame id that is not in the URDF
-(`frame`), a stamp from the past or the future (`stamp_past`, `stamp_future`), or an
-image the detector refuses (`image`). camera_info and joint_states: the kinds of
+compressed payload that does not decode (`decode`), a frame id neither mapped by
+`frame_map` nor in the URDF (`frame`), a stamp from the past or the future (`stamp_past`,
+`stamp_future`), a stamp the buffered joint states do not reach (`joint_state_stamp`), or
+an image the detector refuses (`image`). camera_info and joint_states: the kinds of
 `abp_common.input_checks`.
 """
 
@@ -40,7 +48,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 
 from abp_common import input_checks, names, qos
 from abp_common.health import NodeHealth
-from abp_common.input_checks import Rejected
+from abp_common.input_checks import Rejected, stamp_ns
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
@@ -48,17 +56,23 @@ from abp_description.frames import quaternion_from_rotation
 from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
+from .camera_model import (
+    FrameMap,
+    UnknownFrame,
+    intrinsics_from_camera_info,
+    joints_moving_frame,
+    rectified_to_camera,
+)
 from .detector import (
     ImageDecodeError,
-    ImageEncodingError,
-    ImageLayoutError,
     ImageSizeError,
     RegionSearch,
     TagDetector,
     check_image_size,
     compressed_msg_to_gray,
-    image_msg_to_gray,
 )
+from .image_encodings import ImageEncodingError, ImageLayoutError, image_msg_to_gray
+from .joint_state_buffer import JointStateBuffer, OutsideBuffer
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 
 THROTTLE_S = 5.0
@@ -81,6 +95,17 @@ class ArtagDetectorNode(ManagedNode):
         if not self.kinematics.has_frame(self.camera_frame):
             raise ValueError(f'parameter camera_frame: no frame {self.camera_frame!r} in '
                              f'{self.kinematics.urdf_path}')
+        self.frames = FrameMap(self._values['frame_map'], self.kinematics.has_frame,
+                               self.camera_frame)
+        self.rectified = self._values['image_is_rectified']
+        self._rectified_pose = None          # rectified frame in the camera frame (stereo R)
+        self.joint_lookup = self._values['joint_state_lookup']
+        self.joint_buffer = JointStateBuffer(self._values['joint_state_buffer_s'],
+                                             self._values['joint_state_tolerance_s'])
+        self._camera_joints = {}             # URDF frame -> joints that move it
+        # An image stamped after the newest joint state waits here (one at most) for the
+        # joint state that reaches its stamp, as tf2's message filter waits for a transform.
+        self._waiting = None
         self._config = {name: self._values[name] for name in DETECTOR_PARAMETERS}
         self.detector = None                 # built at the first camera_info
         self.search = RegionSearch(self._values['full_frame_every'],
@@ -98,7 +123,15 @@ class ArtagDetectorNode(ManagedNode):
         self.get_logger().info(
             f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m "
             f'in {self.image_transport} images on {self.resolve_topic_name(self.image_topic)}; '
-            f'poses in {self.base_frame} via {self.camera_frame} forward kinematics')
+            f'poses in {self.base_frame} via forward kinematics of the camera frame '
+            f'(default {self.camera_frame}'
+            + (f', mapped: {self.frames.mapping}' if self.frames.mapping else '')
+            + f') at the joint state {self._lookup_text()}'
+            + ('; rectified images (P, no distortion)' if self.rectified else ''))
+
+    def _lookup_text(self):
+        return ('newest at each image' if self.joint_lookup == 'latest' else
+                'interpolated at each image stamp')
 
     def activate(self):
         self._pub = self.create_publisher(TagDetectionArray, names.TAG_DETECTIONS,
@@ -154,6 +187,29 @@ class ArtagDetectorNode(ManagedNode):
     # -- callbacks ----------------------------------------------------------------
     def _on_camera_info(self, msg: CameraInfo):
         """Raises input_checks.Rejected for a malformed camera_info (NodeHealth counts it)."""
+        self._urdf_frame('camera_info', msg.header.frame_id)
+        if self.rectified:
+            k, d, rect = self._rectified_intrinsics(msg)
+        else:
+            k, d = self._raw_intrinsics(msg)
+            rect = None
+        key = (tuple(k.ravel()), tuple(d), msg.distortion_model, rect)
+        # A camera_info without a size (0 x 0) leaves the image size unchecked.
+        size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
+        key += (size,)
+        if key == self._camera_key:
+            return
+        try:
+            self.detector = self._build_detector(self._config, k, d if d.size else None, size)
+        except ValueError as error:
+            raise Rejected('out_of_range', f'camera_info refused: {error}') from None
+        self._camera_key = key
+        self._rectified_pose = None if rect is None else rectified_to_camera(
+            np.reshape(rect, (3, 3)))
+
+    @staticmethod
+    def _raw_intrinsics(msg):
+        """K and D of a raw image's camera_info (checked)."""
         k = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
         d = np.asarray(msg.d, dtype=np.float64)
         if msg.distortion_model not in DISTORTION_MODELS:
@@ -167,20 +223,20 @@ class ArtagDetectorNode(ManagedNode):
         input_checks.finite('distortion coefficients', d)
         if k[0, 0] <= 0 or k[1, 1] <= 0:
             raise Rejected('empty', 'camera matrix K without positive focal lengths')
-        if msg.header.frame_id and not self.kinematics.has_frame(msg.header.frame_id):
-            raise Rejected('frame', f'camera_info frame {msg.header.frame_id[:40]!r} is not in '
-                                    'the URDF')
-        key = (tuple(k.ravel()), tuple(d), msg.distortion_model)
-        # A camera_info without a size (0 x 0) leaves the image size unchecked.
-        size = (int(msg.width), int(msg.height)) if msg.width and msg.height else None
-        key += (size,)
-        if key == self._camera_key:
-            return
+        return k, d
+
+    @staticmethod
+    def _rectified_intrinsics(msg):
+        """P's 3x3 (no distortion: the image is rectified) and R (None: identity)."""
+        input_checks.finite('projection matrix P', msg.p)
+        input_checks.finite('rectification matrix R', msg.r)
         try:
-            self.detector = self._build_detector(self._config, k, d if d.size else None, size)
+            intrinsics = intrinsics_from_camera_info(msg.k, msg.d, msg.r, msg.p, True)
         except ValueError as error:
-            raise Rejected('out_of_range', f'camera_info refused: {error}') from None
-        self._camera_key = key
+            raise Rejected('empty', str(error)) from None
+        rect = intrinsics.rectification
+        return (intrinsics.camera_matrix, np.zeros(0),
+                None if rect is None else tuple(rect.ravel()))
 
     def _on_joint_state(self, msg: JointState):
         input_checks.joint_state(msg)
@@ -189,21 +245,95 @@ class ArtagDetectorNode(ManagedNode):
             raise Rejected('unknown_id', 'joint_states names no joint of the robot')
         self._joints = self.kinematics.q_from_mapping(
             joints, default=self._joints if self._joints is not None else None)
+        self.joint_buffer.add(stamp_ns(msg.header.stamp), msg.name, msg.position)
+        if self._waiting is not None and not self._must_wait(*self._waiting[1:]):
+            self._detect_waiting()
+
+    def _joints_of(self, frame):
+        joints = self._camera_joints.get(frame)
+        if joints is None:
+            joints = joints_moving_frame(self.kinematics.model, frame)
+            self._camera_joints[frame] = joints
+        return joints
+
+    def _must_wait(self, header, frame):
+        """Whether the joint states that move `frame` do not reach the image stamp yet."""
+        if self.joint_lookup != 'interpolate' or self._joints is None:
+            return False
+        t_ns = stamp_ns(header.stamp)
+        newest = self.joint_buffer.newest_of(self._joints_of(frame))
+        return t_ns != 0 and newest is not None and newest < t_ns
+
+    def _take_frame(self, gray, header, frame):
+        """Detect now, or keep the frame until the joint states reach its stamp (a frame
+        already waiting goes first, with the joint states there are)."""
+        if self._waiting is not None:
+            self._detect_waiting()
+        if self._must_wait(header, frame):
+            self._waiting = (gray, header, frame)
+            return
+        self._detect_and_publish(gray, header, frame, self._pose_at(frame, header))
+
+    def _detect_waiting(self):
+        gray, header, frame = self._waiting
+        self._waiting = None
+        try:
+            self._detect_and_publish(gray, header, frame, self._pose_at(frame, header))
+        except Rejected as rejected:            # counted on the image topic, as it came
+            self.health.reject(self.image_topic, rejected.kind, rejected.detail)
+
+    def _pose_at(self, frame, header):
+        return None if self._joints is None else self._camera_pose(frame, header.stamp)
+
+    def _camera_pose(self, frame, stamp):
+        """Pose of URDF `frame` in the base frame at the image's stamp (or at the newest
+        joint state: joint_state_lookup 'latest', an unstamped image or unstamped joint
+        states). Raises Rejected('joint_state_stamp') when the buffer does not reach the
+        stamp."""
+        t_ns = stamp_ns(stamp)
+        q = self._joints
+        if self.joint_lookup == 'interpolate' and t_ns == 0:
+            self.get_logger().warning(
+                'image without a stamp: camera pose from the newest joint state',
+                throttle_duration_sec=THROTTLE_S)
+        elif self.joint_lookup == 'interpolate':
+            try:
+                found = self.joint_buffer.at(t_ns, self._joints_of(frame))
+            except OutsideBuffer as error:
+                raise Rejected('joint_state_stamp', f'image {error}: do the camera and '
+                               f'{self.resolve_topic_name(names.JOINT_STATES)} share a '
+                               'clock? (joint_state_lookup:=latest takes the newest joint '
+                               'state instead)') from None
+            if found.unstamped:
+                self.get_logger().warning(
+                    f'joint_states of {", ".join(found.unstamped)} are unstamped: camera pose '
+                    'from the newest of them, not at the image stamp',
+                    throttle_duration_sec=THROTTLE_S)
+            q = self.kinematics.q_from_mapping(found.positions, default=self._joints)
+        return self.kinematics.frame_pose(q, frame)
 
     def _ready(self):
         if self.detector is None:
             raise Rejected('no_camera_info', 'no valid camera_info on '
                                              f'{self.resolve_topic_name(names.CAMERA_INFO)} yet')
 
+    def _urdf_frame(self, what, frame_id):
+        """The URDF frame of a header's frame_id (frame_map, the URDF, camera_frame)."""
+        try:
+            return self.frames.resolve(frame_id)
+        except UnknownFrame as error:
+            raise Rejected('frame', f'{what} {error}') from None
+
     def _check_header(self, header):
-        if header.frame_id and not self.kinematics.has_frame(header.frame_id):
-            raise Rejected('frame', f'image frame {header.frame_id[:40]!r} is not in the URDF')
+        """The image's URDF frame (its stamp checked)."""
+        frame = self._urdf_frame('image', header.frame_id)
         self._image_stamps.check(header.stamp, self.health.now_ns())
+        return frame
 
     def _on_image(self, msg: Image):
         """Raises input_checks.Rejected for a frame it cannot use (NodeHealth counts it)."""
         self._ready()
-        self._check_header(msg.header)
+        frame = self._check_header(msg.header)
         try:
             # Before converting: a mismatched frame costs nothing.
             check_image_size(msg.width, msg.height, self.detector.image_size)
@@ -215,11 +345,11 @@ class ArtagDetectorNode(ManagedNode):
         except ImageEncodingError as error:
             raise Rejected('encoding', str(error)) from None
         self._image_stamps.taken(msg.header.stamp)
-        self._detect_and_publish(gray, msg.header)
+        self._take_frame(gray, msg.header, frame)
 
     def _on_compressed_image(self, msg: CompressedImage):
         self._ready()
-        self._check_header(msg.header)
+        frame = self._check_header(msg.header)
         try:
             gray = compressed_msg_to_gray(msg)
         except ImageDecodeError as error:
@@ -227,9 +357,9 @@ class ArtagDetectorNode(ManagedNode):
         except ImageEncodingError as error:
             raise Rejected('encoding', str(error)) from None
         self._image_stamps.taken(msg.header.stamp)
-        self._detect_and_publish(gray, msg.header)
+        self._take_frame(gray, msg.header, frame)
 
-    def _detect_and_publish(self, gray, header):
+    def _detect_and_publish(self, gray, header, frame, camera_pose):
         try:
             with self.health.timed():
                 result = self.search.detect(self.detector, gray)
@@ -242,21 +372,19 @@ class ArtagDetectorNode(ManagedNode):
                 from None
         for dropped in result.dropped:
             self.get_logger().debug(f'tag {dropped.tag_id} dropped: {dropped.reason}')
-        frame = self._camera_frame_of(header.frame_id)
-        if self._joints is not None:
-            result = result.in_frame(self.kinematics.frame_pose(self._joints, frame),
-                                     self.base_frame)
+        rectified = self._rectified_pose         # poses of a rectified stereo image: by R^T
+        if camera_pose is not None:
+            result = result.in_frame(camera_pose if rectified is None else
+                                     camera_pose @ rectified, self.base_frame)
             out_frame = self.base_frame
         else:
             self.get_logger().warning(
                 f'no {self.resolve_topic_name(names.JOINT_STATES)} yet: detections published '
                 'in the camera frame', throttle_duration_sec=THROTTLE_S)
             out_frame = header.frame_id or frame
+            if rectified is not None:
+                result = result.in_frame(rectified, out_frame)
         self._pub.publish(self._to_msg(result, header, out_frame))
-
-    def _camera_frame_of(self, frame_id):
-        """The image's frame (checked to be in the URDF), or camera_frame when it has none."""
-        return frame_id or self.camera_frame
 
     @staticmethod
     def _to_msg(result, header, frame):

@@ -85,9 +85,9 @@ accuracy on small tags, calibrated on the sim bridge's renders):
 
 Confidence in [0, 1]: ``exp(-rms^2 / 2) * min(1, side / 20 px)``.
 
-Images are converted from ``sensor_msgs/Image``-shaped data without cv_bridge
-(``image_to_gray``): mono8 / 8UC1, bgr8, rgb8, bgra8, rgba8 (8UC3 and 8UC4 are taken
-as BGR / BGRA, OpenCV's order). Anything else raises ``ImageEncodingError``.
+Images are converted from ``sensor_msgs/Image``-shaped data without cv_bridge by
+``image_encodings.image_to_gray`` (re-exported here): 8-bit mono and colour, YUV 4:2:2,
+mono16 and Bayer; anything else raises ``ImageEncodingError``.
 ``sensor_msgs/CompressedImage`` payloads (JPEG or PNG, image_transport's ``compressed``
 format strings such as ``'rgb8; jpeg compressed bgr8'``) are decoded by
 ``compressed_image_to_gray`` (``cv2.imdecode``); a corrupt payload raises
@@ -111,6 +111,14 @@ import numpy as np
 from .blur_decode import MIN_DARKNESS, darkness, decode_blurred, marker_contrast
 from .corners import decode_quads, quad_areas, refine_quads
 from .face_search import adjacent_face_boxes, copy_parameters
+from .image_encodings import (
+    EIGHT_BIT_ENCODINGS,
+    SUPPORTED_ENCODINGS,
+    ImageEncodingError,
+    ImageLayoutError,
+    image_msg_to_gray,
+    image_to_gray,
+)
 from .rigid_cube import fit_cubes
 
 __all__ = [
@@ -122,18 +130,8 @@ __all__ = [
     'clip_regions', 'transform_covariance', 'pose_covariance',
 ]
 
-# encoding -> (channels, cv2 conversion to grey or None)
-_ENCODINGS = {
-    'mono8': (1, None),
-    '8UC1': (1, None),
-    'bgr8': (3, cv2.COLOR_BGR2GRAY),
-    '8UC3': (3, cv2.COLOR_BGR2GRAY),
-    'rgb8': (3, cv2.COLOR_RGB2GRAY),
-    'bgra8': (4, cv2.COLOR_BGRA2GRAY),
-    '8UC4': (4, cv2.COLOR_BGRA2GRAY),
-    'rgba8': (4, cv2.COLOR_RGBA2GRAY),
-}
-SUPPORTED_ENCODINGS = tuple(_ENCODINGS)
+# What a CompressedImage format may name as the original or transport encoding.
+_ENCODINGS = EIGHT_BIT_ENCODINGS
 
 DICTIONARY_NAMES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith('DICT_')))
 # OpenCV id -> name; cv2.aruco.getPredefinedDictionary maps an unknown id to DICT_4X4_50
@@ -187,14 +185,6 @@ PARALLELOGRAM_PX = 0.02
 _PNP_FALLBACKS = (('sqpnp', cv2.SOLVEPNP_SQPNP), ('iterative', cv2.SOLVEPNP_ITERATIVE))
 
 
-class ImageEncodingError(ValueError):
-    """The image cannot be converted (unsupported encoding or inconsistent buffer)."""
-
-
-class ImageLayoutError(ImageEncodingError):
-    """An image whose size, step and data length disagree."""
-
-
 class ImageDecodeError(ImageEncodingError):
     """A compressed image payload that does not decode (corrupt, truncated, empty)."""
 
@@ -213,37 +203,6 @@ def check_image_size(width, height, expected):
             f'image is {int(width)}x{int(height)} px but the camera intrinsics (camera_info) '
             f'are for {ew}x{eh} px: poses would be wrong (a scaled image scales every '
             f'distance); resize the image or use the matching camera_info')
-
-
-def image_to_gray(encoding, height, width, step, data) -> np.ndarray:
-    """A (height, width) uint8 grey image from sensor_msgs/Image fields (no copy for mono8)."""
-    if encoding not in _ENCODINGS:
-        raise ImageEncodingError(
-            f"unsupported image encoding {encoding!r}; supported: {', '.join(SUPPORTED_ENCODINGS)}")
-    channels, conversion = _ENCODINGS[encoding]
-    height, width, step = int(height), int(width), int(step)
-    if height <= 0 or width <= 0:
-        raise ImageLayoutError(f'empty image ({width} x {height})')
-    if step < width * channels:
-        raise ImageLayoutError(
-            f'step {step} is smaller than width x channels = {width * channels} for {encoding}')
-    try:
-        buf = np.frombuffer(memoryview(data), dtype=np.uint8)
-    except TypeError:
-        buf = np.asarray(data, dtype=np.uint8).reshape(-1)
-    if buf.size != step * height:
-        raise ImageLayoutError(
-            f'image data has {buf.size} bytes, expected step x height = {step * height}')
-    rows = buf[:step * height].reshape(height, step)[:, :width * channels]
-    if channels == 1:
-        return rows
-    img = np.ascontiguousarray(rows).reshape(height, width, channels)
-    return cv2.cvtColor(img, conversion)
-
-
-def image_msg_to_gray(msg) -> np.ndarray:
-    """``image_to_gray`` of anything with sensor_msgs/Image's fields."""
-    return image_to_gray(msg.encoding, msg.height, msg.width, msg.step, msg.data)
 
 
 def _parse_format(fmt):
@@ -274,13 +233,13 @@ def parse_compressed_format(fmt):
     compressed <encoding>'``, ``'<encoding>; png compressed <encoding>'`` or the legacy
     ``'jpeg'`` / ``'png'``; parts that are absent are None (an empty format: the codec is
     read from the payload). Raises ImageEncodingError for other codecs, compressedDepth
-    and original encodings that are not 8-bit images (SUPPORTED_ENCODINGS)."""
+    and original encodings that are not 8-bit images (image_encodings.EIGHT_BIT_ENCODINGS)."""
     original, codec, transport = _parse_format(fmt)
     for enc in (original, transport):
         if enc is not None and enc not in _ENCODINGS:
             raise ImageEncodingError(
                 f'compressed image format {fmt!r}: unsupported image encoding {enc!r}; '
-                f"supported: {', '.join(SUPPORTED_ENCODINGS)}")
+                f"supported: {', '.join(_ENCODINGS)}")
     return original, codec, transport
 
 

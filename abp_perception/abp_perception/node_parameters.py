@@ -8,11 +8,13 @@ after the model-set parameters it shares with the belief node
 time.
 """
 
-from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
+from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, STRING_ARRAY, ParamSpec
 
 from .detector import DICTIONARY_NAMES
 
 IMAGE_TRANSPORTS = ('raw', 'compressed')
+# How the camera pose is timed: the joint state at the image stamp, or the newest one.
+JOINT_STATE_LOOKUPS = ('interpolate', 'latest')
 
 DETECTOR_SPECS = (
     ParamSpec('dictionary', STRING, 'DICT_4X4_50', 'ArUco dictionary (OpenCV name).',
@@ -28,8 +30,29 @@ DETECTOR_SPECS = (
     ParamSpec('base_frame', STRING, 'base_link', 'Frame of the published poses (robot base).',
               read_only=True),
     ParamSpec('camera_frame', STRING, 'camera_optical_frame',
-              "URDF frame of the camera, used when the image's frame_id is not in the URDF.",
+              'URDF frame of the camera, used for images and camera_info without a frame_id.',
               read_only=True),
+    ParamSpec('frame_map', STRING_ARRAY, None, "Camera driver frames as URDF frames: "
+              "'driver_frame:urdf_frame' entries, e.g. "
+              "['camera_color_optical_frame:camera_optical_frame']. A frame_id neither "
+              'mapped nor in the URDF is refused (camera_model.FrameMap).', read_only=True),
+    ParamSpec('image_is_rectified', BOOL, False, 'true: the images are rectified (an '
+              "image_proc 'image_rect' topic): intrinsics from camera_info's P (left 3x3), "
+              'its D ignored, poses rotated back by R; false: raw images, K and D.',
+              read_only=True),
+    ParamSpec('joint_state_lookup', STRING, 'interpolate', "Camera pose from the joint "
+              "state at the image stamp ('interpolate': linear between the buffered "
+              "joint_states around it) or from the newest joint state ('latest': for "
+              'senders whose stamps cannot be trusted; wrong while the head moves).',
+              read_only=True, choices=JOINT_STATE_LOOKUPS),
+    ParamSpec('joint_state_buffer_s', DOUBLE, 2.0, 'Seconds of joint_states kept for '
+              'the lookup at image stamps (longer than the latency of the images).',
+              (0.1, 60.0), read_only=True),
+    ParamSpec('joint_state_tolerance_s', DOUBLE, 0.02, 'An image waits for the joint '
+              'state that reaches its stamp until the next image comes; then, stamped up '
+              'to this long after the newest (or before the oldest) buffered joint state, '
+              'it takes that state, and further out it is refused (joint_state_stamp), s.',
+              (0.0, 1.0), read_only=True),
     ParamSpec('urdf_file', STRING, '', "URDF for the kinematics; empty = abp_description's.",
               read_only=True),
     ParamSpec('corner_sigma_px', DOUBLE, 0.08, 'Base corner noise of the covariance model, px.',
@@ -85,5 +108,5 @@ def matcher_options(values):
                 distance_samples=values['distance_samples'])
 
 
-__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'IMAGE_TRANSPORTS', 'MATCHER_PARAMETERS',
-           'MATCHER_SPECS', 'matcher_options']
+__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'IMAGE_TRANSPORTS', 'JOINT_STATE_LOOKUPS',
+           'MATCHER_PARAMETERS', 'MATCHER_SPECS', 'matcher_options']

@@ -72,9 +72,9 @@ def test_mono8_with_row_padding_and_array_data(gray_image):
 
 
 @pytest.mark.parametrize('encoding, step, size, message', [
-    ('yuv422', 10, 60, "unsupported image encoding 'yuv422'"),
-    ('mono16', 10, 60, "unsupported image encoding 'mono16'"),
-    ('bayer_rggb8', 5, 30, 'unsupported'),
+    ('32FC1', 20, 120, "unsupported image encoding '32FC1'"),   # depth images
+    ('rgb16', 30, 180, "unsupported image encoding 'rgb16'"),
+    ('nv21', 5, 45, 'unsupported'),
     ('bgr8', 5, 30, 'step 5 is smaller'),
     ('mono8', 5, 20, 'expected step x height = 30'),
 ])

@@ -95,14 +95,14 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
         lambda: image_pub.publish(image_msg(gray, cam.frame_id, Time(sec=1))),
         'no valid camera_info')
 
-    # Unsupported encoding: skipped with an error naming it.
+    # Unsupported encoding (a depth image): skipped with an error naming it.
     def bad_encoding():
         info_pub.publish(camera_info_msg(cam))
-        image_pub.publish(image_msg(np.zeros((cam.height, cam.width * 2), np.uint8),
-                                    cam.frame_id, Time(sec=2), encoding='yuv422',
-                                    bytes_per_pixel=2))
+        image_pub.publish(image_msg(np.zeros((cam.height, cam.width * 4), np.uint8),
+                                    cam.frame_id, Time(sec=2), encoding='32FC1',
+                                    bytes_per_pixel=4))
 
-    assert publish_until_logged(bad_encoding, "unsupported image encoding 'yuv422'")
+    assert publish_until_logged(bad_encoding, "unsupported image encoding '32FC1'")
 
     # An image of another size than camera_info's: rejected naming both, and counted.
     def scaled():
@@ -246,11 +246,67 @@ def test_frames_between_full_searches_are_tracked_and_counted(ros_processes, tes
     assert proc.poll() is None
 
 
+def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_processes,
+                                                                        tester, spin):
+    # A camera driver's own frame name, mapped; UYVY (yuv422) frames; image_proc's
+    # rectified images: P is the camera, and the (large) D must not be applied again.
+    cam = camera_intrinsics()
+    driver_frame = 'camera_color_optical_frame'
+    proc = ros_processes.start([
+        executable('artag_detector'), '--ros-args',
+        '-p', f"frame_map:=['{driver_frame}:camera_optical_frame']",
+        '-p', 'image_is_rectified:=true'])
+    node, executor = tester
+    image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
+    info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
+    detections = []
+    node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
+                             qos.RELIABLE)
+    assert spin(executor, lambda: image_pub.get_subscription_count() > 0
+                and info_pub.get_subscription_count() > 0
+                and node.count_publishers(names.TAG_DETECTIONS) > 0, 30)
+    info = camera_info_msg(cam)
+    info.header.frame_id = driver_frame
+    info.k = [float(v) for v in (cam.K * [[0.8], [0.8], [1.0]]).ravel()]  # the raw camera
+    info.d = [0.3, -0.2, 0.0, 0.0, 0.0]
+    tags = {3: tag_pose([-0.1, 0.0, 0.7], 25.0), 8: tag_pose([0.12, 0.05, 0.9], -15.0)}
+    scene = render_tags(cam.K, cam.width, cam.height, list(tags.items()), 0.08)
+    uyvy = np.empty((cam.height, cam.width, 2), np.uint8)
+    uyvy[..., 0], uyvy[..., 1] = 128, scene                     # U/V, Y
+    packed = uyvy.reshape(cam.height, 2 * cam.width)
+
+    def publish(frame_id, sec):
+        info_pub.publish(info)
+        image_pub.publish(image_msg(packed, frame_id, Time(sec=sec), encoding='yuv422',
+                                    bytes_per_pixel=2))
+
+    # A frame neither mapped nor in the URDF: refused, naming the parameter to set.
+    assert publish_until_printed(ros_processes, proc, executor, spin,
+                                 lambda: publish('usb_cam', 1),
+                                 "frame 'usb_cam' is not a frame of the URDF: map it")
+    assert detections == []
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline and not detections:
+        publish(driver_frame, 2)
+        spin(executor, lambda: detections, 0.3)
+    assert detections, 'no detections from yuv422 frames in the driver frame'
+    out = detections[-1]
+    assert out.header.frame_id == driver_frame and out.camera_frame_id == driver_frame
+    found = {d.id: d.pose.pose.position for d in out.detections}
+    assert sorted(found) == [3, 8]
+    for tag_id, pose in tags.items():
+        p = found[tag_id]
+        np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=0.01)
+    assert proc.poll() is None
+
+
 @pytest.mark.parametrize('name, override, expected', [
     ('artag_detector', 'dictionary:=DICT_BOGUS', 'DICT_APRILTAG_36h11'),
     ('artag_detector', 'image_transport:=theora', 'image_transport'),
     ('artag_detector', 'marker_size:=0.0', 'marker_size'),
     ('artag_detector', 'full_frame_every:=0', 'full_frame_every'),
+    ('artag_detector', "frame_map:=['cam:no_such_link']", 'frame_map'),
+    ('artag_detector', 'joint_state_lookup:=nearest', 'joint_state_lookup'),
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),
 ])

@@ -61,12 +61,9 @@ import numpy as np
 import pinocchio as pin
 import rclpy
 from builtin_interfaces.msg import Time
-from control_msgs.action import FollowJointTrajectory
 from geometry_msgs.msg import Point, Pose, Quaternion
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.action import ActionServer, CancelResponse, GoalResponse
-from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
@@ -86,17 +83,18 @@ from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import SimGroundTruth
 
 from . import config as cfg
-from .controller_goals import INVALID_GOAL, GoalEnd, GoalMonitor
-from .joint_trajectory_follower import TrajectoryError, TrajectoryPoint
+from .controller_servers import (
+    EXECUTOR_THREADS,
+    ControllerActions,
+    check_trajectory,
+    trajectory_points,
+)
+from .joint_trajectory_follower import TrajectoryError
 from .scenario import drawn_tags
 from .sim_timing import CameraSchedule, GroundTruthSchedule, Pacer, sim_seconds
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
-FOLLOW_JOINT_TRAJECTORY = '{controller}/follow_joint_trajectory'
-# Executor threads: each running FollowJointTrajectory goal keeps one (four controllers),
-# and the topics and services need the rest.
-EXECUTOR_THREADS = 8
 
 
 def _stamp(ns):
@@ -140,7 +138,7 @@ class SimBridgeNode(ManagedNode):
             check_rendering()  # no EGL: a configuration error with the fix, not a traceback
         self.kin = RobotKinematics()
         self.intrinsics = camera_intrinsics()
-        self._lock = threading.Lock()
+        self.lock = threading.Lock()
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
         self.health = NodeHealth(self)
@@ -148,10 +146,8 @@ class SimBridgeNode(ManagedNode):
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
                                    for c in CONTROLLERS}
-        stopped = self.config.values['stopped_velocity_tolerance']
-        self._goal_monitors = {c: GoalMonitor(joints, stopped)
-                               for c, joints in CONTROLLERS.items()}
-        self._goal_ends = {}    # goal id -> (threading.Event, [GoalEnd]) of running goals
+        self._controller_actions = ControllerActions(
+            self, self.config.values['stopped_velocity_tolerance'])
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._camera_info = self._camera_info_msg()
         self._joint_msg = JointState(name=list(self.kin.joint_names))
@@ -185,16 +181,7 @@ class SimBridgeNode(ManagedNode):
             self.health.subscribe(
                 JointTrajectory, names.trajectory_topic(controller),
                 lambda msg, c=controller: self._on_trajectory(c, msg), qos.RELIABLE)
-        goals = ReentrantCallbackGroup()
-        for controller in CONTROLLERS:
-            ActionServer(
-                self, FollowJointTrajectory, FOLLOW_JOINT_TRAJECTORY.format(controller=controller),
-                execute_callback=self._execute_goal,
-                goal_callback=lambda goal, c=controller: self._on_goal_request(c, goal),
-                handle_accepted_callback=lambda handle, c=controller:
-                    self._on_goal_accepted(c, handle),
-                cancel_callback=lambda handle, c=controller: self._on_goal_cancel(c, handle),
-                callback_group=goals)
+        self._controller_actions.serve()
         # ~/reset_world: names.RESET_WORLD for the node named sim_bridge.
         self.create_service(Trigger, '~/reset_world', self._on_reset)
         self._frames = queue.Queue(maxsize=1)
@@ -234,7 +221,7 @@ class SimBridgeNode(ManagedNode):
     def _on_reset(self, request, response):
         try:
             config = cfg.build(read_all(self, cfg.PARAMETERS))
-            with self._lock:
+            with self.lock:
                 self._build(config, self.sim.time_ns)
         except ValueError as err:
             response.success = False
@@ -255,7 +242,7 @@ class SimBridgeNode(ManagedNode):
         input_checks.point('cmd_vel linear', twist.linear)
         input_checks.point('cmd_vel angular', twist.angular)
         try:
-            with self._lock:
+            with self.lock:
                 self.sim.set_cmd_vel(twist.linear.x, twist.angular.z)
         except ValueError as err:
             raise Rejected('out_of_range', str(err)) from None
@@ -263,6 +250,15 @@ class SimBridgeNode(ManagedNode):
     def _sim_now_ns(self):
         """The simulation's time as the stamps of the commands count it."""
         return self.sim.time_ns + self._epoch_ns
+
+    def trajectory_start_s(self, controller, stamp):
+        """A trajectory's header.stamp in the simulation's seconds (0: on receipt);
+        raises Rejected for a stamp from the past or the far future."""
+        stamp_ns = self._trajectory_stamps[controller].check(stamp, self._sim_now_ns())
+        return sim_seconds(stamp_ns, self._epoch_ns)
+
+    def stopping(self):
+        return self._stop.is_set() or not self.context.ok()
 
     def _on_trajectory(self, controller, msg):
         """Raises input_checks.Rejected for a trajectory the controller refuses."""
@@ -279,115 +275,13 @@ class SimBridgeNode(ManagedNode):
                 'its start stamp: it starts part-way along its path (stamp it further ahead '
                 'at this speed-up)', throttle_duration_sec=5.0)
         try:
-            with self._lock:
+            with self.lock:
                 self.sim.set_trajectory(controller, list(msg.joint_names),
                                         trajectory_points(msg),
                                         sim_seconds(stamp_ns, self._epoch_ns))
         except TrajectoryError as err:
             raise Rejected('malformed', str(err)) from None
         stamps.taken(msg.header.stamp)
-
-    # -- FollowJointTrajectory goals (as Jazzy's joint_trajectory_controller) ---------------
-    def _on_goal_request(self, controller, goal):
-        """Accept a goal the controller can follow; refuse the rest with its error."""
-        follower = self.sim.controllers[controller][0]
-        try:
-            check_trajectory(goal.trajectory, CONTROLLERS[controller])
-            follower.check(goal.trajectory.joint_names, trajectory_points(goal.trajectory))
-            for tolerance in (*goal.path_tolerance, *goal.goal_tolerance):
-                input_checks.finite('tolerance', [tolerance.position, tolerance.velocity])
-        except (Rejected, TrajectoryError) as err:
-            self.get_logger().error(f'{controller}: goal refused: {err}')
-            return GoalResponse.REJECT
-        return GoalResponse.ACCEPT
-
-    def _on_goal_accepted(self, controller, handle):
-        goal = handle.request
-        traj = goal.trajectory
-        goal_id = bytes(handle.goal_id.uuid)
-        done = (threading.Event(), [])
-        self._goal_ends[goal_id] = done
-        try:
-            stamp_ns = self._trajectory_stamps[controller].check(traj.header.stamp,
-                                                                 self._sim_now_ns())
-            with self._lock:
-                self.sim.set_trajectory(controller, list(traj.joint_names),
-                                        trajectory_points(traj),
-                                        sim_seconds(stamp_ns, self._epoch_ns))
-                follower = self.sim.controllers[controller][0]
-                preempted = self._goal_monitors[controller].start(
-                    goal_id, follower.end_time,
-                    path_tolerance=[(t.name, t.position) for t in goal.path_tolerance],
-                    goal_tolerance=[(t.name, t.position) for t in goal.goal_tolerance],
-                    velocity_tolerance=[(t.name, t.velocity) for t in goal.goal_tolerance],
-                    goal_time_tolerance=goal.goal_time_tolerance.sec
-                    + goal.goal_time_tolerance.nanosec * 1e-9)
-        except (Rejected, TrajectoryError, ValueError) as err:
-            preempted = None
-            done[1].append(GoalEnd(goal_id, 'aborted', INVALID_GOAL, str(err)))
-            done[0].set()
-        if preempted is not None:
-            self._end_goal(preempted)
-        handle.execute()
-
-    def _on_goal_cancel(self, controller, handle):
-        """As the controller: the goal ends canceled and the joints hold where they are."""
-        goal_id = bytes(handle.goal_id.uuid)
-        with self._lock:
-            end = self._goal_monitors[controller].cancel(goal_id)
-            if end is not None:
-                follower, idx = self.sim.controllers[controller]
-                follower.hold(self.sim.q[idx])
-        if end is not None:
-            self._end_goal(end)
-        return CancelResponse.ACCEPT
-
-    def _end_goal(self, end):
-        done = self._goal_ends.get(end.goal_id)
-        if done is not None:
-            done[1].append(end)
-            done[0].set()
-
-    def _execute_goal(self, handle):
-        """Wait (an executor thread of its own) until the simulation ends the goal."""
-        goal_id = bytes(handle.goal_id.uuid)
-        event, ends = self._goal_ends[goal_id]
-        while not event.wait(0.5):
-            if self._stop.is_set() or not self.context.ok():
-                break
-        self._goal_ends.pop(goal_id, None)
-        result = FollowJointTrajectory.Result()
-        if not ends:
-            result.error_code, result.error_string = INVALID_GOAL, 'the simulation stopped'
-            handle.abort()
-            return result
-        end = ends[0]
-        result.error_code, result.error_string = end.error_code, end.error_string
-        if end.status == 'succeeded':
-            handle.succeed()
-        elif end.status == 'canceled':
-            handle.canceled()
-        else:
-            handle.abort()
-        return result
-
-    def _judge_goals(self):
-        """Each tick: the verdict on every running goal (call with the lock held). An
-        aborted goal leaves its controller holding, as the controller does."""
-        sim = self.sim
-        ended = []
-        for controller, monitor in self._goal_monitors.items():
-            if monitor.active_goal is None:
-                continue
-            follower, idx = sim.controllers[controller]
-            q = sim.q[idx]
-            end = monitor.update(sim.time, q, sim.qd[idx], follower.sample(sim.time, q),
-                                 follower.end_time)
-            if end is not None:
-                if end.status == 'aborted':
-                    follower.hold(q)
-                ended.append(end)
-        return ended
 
     # -- the simulation thread --------------------------------------------------------
     def _sim_loop(self):
@@ -418,7 +312,7 @@ class SimBridgeNode(ManagedNode):
     def _tick(self):
         frame = gt = None
         started = time.perf_counter()
-        with self._lock:
+        with self.lock:
             sim = self.sim
             sim.step()
             t_ns = sim.time_ns
@@ -432,14 +326,13 @@ class SimBridgeNode(ManagedNode):
                 tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
                                   self._tag_miss_rng)
                 frame = _Frame(stamp, self.camera, self.camera.capture(sim, tags))
-            goal_ends = self._judge_goals()
+            goal_ends = self._controller_actions.judge()
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
                 gt = self._ground_truth_msg(stamp)
         self.health.latency(time.perf_counter() - started)
-        for end in goal_ends:
-            self._end_goal(end)
+        self._controller_actions.report(goal_ends)
         if self._clock_pub is not None:
             self._clock_msg.clock = stamp
             self._clock_pub.publish(self._clock_msg)
@@ -542,45 +435,6 @@ class SimBridgeNode(ManagedNode):
         for thread in self._threads:
             thread.join(timeout=2.0)
         return self._failed
-
-
-MAX_TRAJECTORY_POINTS = 100_000
-
-
-def trajectory_points(msg):
-    """The points of a trajectory_msgs/JointTrajectory for the followers."""
-    return [TrajectoryPoint(p.time_from_start.sec + p.time_from_start.nanosec * 1e-9,
-                            np.asarray(p.positions, dtype=float),
-                            np.asarray(p.velocities, dtype=float) if len(p.velocities) else None)
-            for p in msg.points]
-
-
-def check_trajectory(msg, controller_joints):
-    """Raise input_checks.Rejected for a JointTrajectory no controller should follow:
-    oversized, joints the controller does not have, point sizes that disagree with the
-    joint names, non-finite numbers. (joint_trajectory_follower checks the rest.)"""
-    input_checks.at_most('trajectory points', len(msg.points), MAX_TRAJECTORY_POINTS)
-    input_checks.at_most('trajectory joint names', len(msg.joint_names), len(controller_joints))
-    unknown = [n for n in msg.joint_names if n not in controller_joints]
-    if unknown:
-        raise Rejected('unknown_id', f'joints {[n[:40] for n in unknown[:3]]} are not '
-                                     f'controlled here ({", ".join(controller_joints)})')
-    if not msg.points:
-        # Jazzy's joint_trajectory_controller: "Empty trajectory received." It does not
-        # stop: a stop is a one-point hold at the current position.
-        raise Rejected('empty', 'Empty trajectory received. (a stop is a one-point hold at '
-                                'the current position)')
-    if not msg.joint_names:
-        raise Rejected('empty', 'trajectory points without joint names')
-    n = len(msg.joint_names)
-    for i, p in enumerate(msg.points):
-        if len(p.positions) != n or len(p.velocities) not in (0, n) \
-                or len(p.accelerations) not in (0, n):
-            raise Rejected('size_mismatch', f'point {i} has {len(p.positions)} positions, '
-                                            f'{len(p.velocities)} velocities and '
-                                            f'{len(p.accelerations)} accelerations for {n} '
-                                            'joints')
-        input_checks.finite(f'point {i}', [*p.positions, *p.velocities, *p.accelerations])
 
 
 def main(args=None):

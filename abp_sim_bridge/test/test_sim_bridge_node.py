@@ -15,9 +15,13 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
+from action_msgs.msg import GoalStatus  # noqa: E402
 from builtin_interfaces.msg import Duration, Time  # noqa: E402
+from control_msgs.action import FollowJointTrajectory  # noqa: E402
+from control_msgs.msg import JointTolerance  # noqa: E402
 from geometry_msgs.msg import TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
+from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
@@ -28,6 +32,7 @@ from std_srvs.srv import Trigger  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint  # noqa: E402
 
 from abp_common import qos  # noqa: E402
+from abp_common.server_handshake import wait_until_answering  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
 from abp_description.frames import (  # noqa: E402
@@ -432,6 +437,71 @@ def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
             if ns(m.header.stamp) >= t0]
     assert np.ptp(held) < 1e-9, 'the elbow did not hold after a one-point hold'
     assert held[0] > -1.2 + 1e-3  # it stopped before the end of the slow move
+
+
+
+def test_follow_joint_trajectory_goals_end_as_jazzys_controller_ends_them(ros_processes,
+                                                                           tester_factory):
+    """The head controller's action: a goal without points is rejected; one that the
+    joints follow ends SUCCESSFUL; a path tolerance the velocity-limited joint cannot keep
+    aborts PATH_TOLERANCE_VIOLATED and the joint holds; a cancel holds the joint where it
+    is and ends the goal canceled."""
+    start_bridge(ros_processes, world='rules', speedup=2.0, camera_rate=0.0,
+                 look_at_cube=False)
+    t = tester_factory('joint_states')
+    client = ActionClient(t.node, FollowJointTrajectory, '/head_controller/follow_joint_trajectory')
+    assert wait_until_answering(client, lambda done, s: t.spin_until(done, s), 30)
+    joints = list(CONTROLLERS['head_controller'])
+
+    def goal(points, path_tolerance=None):
+        g = FollowJointTrajectory.Goal()
+        g.trajectory = JointTrajectory(joint_names=joints, points=[
+            JointTrajectoryPoint(positions=[pan, 0.0], velocities=[0.0, 0.0],
+                                 time_from_start=to_duration(at)) for at, pan in points])
+        if path_tolerance is not None:
+            g.path_tolerance = [JointTolerance(name='head_pan_joint', position=path_tolerance)]
+        g.goal_tolerance = [JointTolerance(name=j, position=0.01) for j in joints]
+        return g
+
+    def send(g):
+        sent = client.send_goal_async(g)
+        assert t.spin_until(sent.done, 30)
+        return sent.result()
+
+    def result(handle, timeout=60):
+        future = handle.get_result_async()
+        assert t.spin_until(future.done, timeout)
+        return future.result()
+
+    def pan():
+        return t.last('joint_states').position[t.last('joint_states').name.index('head_pan_joint')]
+
+    assert not send(goal([])).accepted, 'a goal without points was accepted'
+    done = result(send(goal([(1.0, 0.3)])))
+    assert done.status == GoalStatus.STATUS_SUCCEEDED
+    assert done.result.error_code == FollowJointTrajectory.Result.SUCCESSFUL
+    assert t.spin_until(lambda: abs(pan() - 0.3) < 1e-6, 30)
+    # 2 rad in 0.1 s is far beyond the pan's 3 rad/s: the joint lags the desired path.
+    aborted = result(send(goal([(0.1, -1.7)], path_tolerance=0.05)))
+    assert aborted.status == GoalStatus.STATUS_ABORTED
+    assert aborted.result.error_code == FollowJointTrajectory.Result.PATH_TOLERANCE_VIOLATED
+    assert 'head_pan_joint' in aborted.result.error_string
+    n = len(t.msgs['joint_states'])
+    assert t.spin_until(lambda: len(t.msgs['joint_states']) > n + 20, 30)
+    held = [m.position[m.name.index('head_pan_joint')] for m in t.msgs['joint_states'][n:]]
+    assert np.ptp(held) < 1e-9 and held[0] > -1.7 + 0.1, 'no hold after the abort'
+    # A slow move, cancelled on its way: canceled, and the joint holds where it was.
+    slow = send(goal([(20.0, 1.0)]))
+    start = pan()
+    assert t.spin_until(lambda: pan() > start + 0.05, 30), 'the slow move did not start'
+    cancel = slow.cancel_goal_async()
+    assert t.spin_until(cancel.done, 30)
+    assert result(slow).status == GoalStatus.STATUS_CANCELED
+    n = len(t.msgs['joint_states'])
+    assert t.spin_until(lambda: len(t.msgs['joint_states']) > n + 20, 30)
+    held = [m.position[m.name.index('head_pan_joint')] for m in t.msgs['joint_states'][n:]]
+    assert np.ptp(held) < 1e-9 and held[0] < 0.9, 'no hold after the cancel'
+    client.destroy()
 
 
 # -- camera -------------------------------------------------------------------------------

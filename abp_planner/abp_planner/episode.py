@@ -179,6 +179,10 @@ class EpisodePorts(Protocol):
     def latest_belief(self):
         """The latest belief received, or None."""
 
+    def belief_restarted(self) -> bool:
+        """True once after a belief whose step went back without a reset having been
+        asked for: a new belief node (belief_inbox)."""
+
     def check_feasibility(self) -> dict:
         """{action: (feasible, reason)}; actions left out count as feasible."""
 
@@ -363,9 +367,10 @@ class EpisodeRunner:
         fresh = self.ports.wait_for_belief(
             lambda b: b.step >= expected_step or b.step < step_before,
             self.observation_timeout_s)
-        if fresh is not None and fresh.step < step_before:
-            self.log.warning(f'the belief went back from step {step_before} to {fresh.step}: '
-                             'the belief node restarted; re-observing')
+        if self.ports.belief_restarted() or (fresh is not None and fresh.step < step_before):
+            self.log.warning(f'the belief went back from step {step_before} (now step '
+                             f'{fresh.step if fresh is not None else "-"}): the belief node '
+                             'restarted; re-observing')
             return self._start()
         if fresh is None:
             self.log.warning(

@@ -43,6 +43,7 @@ from abp_msgs.action import Recognize
 from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
 from abp_msgs.srv import CheckFeasibility, ResetBelief
 
+from .belief_inbox import BeliefInbox
 from .episode import (
     ABORTED,
     BELIEF_NODE,
@@ -84,9 +85,7 @@ class PlannerNode(ManagedNode):
         self._belief_group = MutuallyExclusiveCallbackGroup()
         self._observation_group = MutuallyExclusiveCallbackGroup()
         self._diagnostics_group = MutuallyExclusiveCallbackGroup()
-        self._belief_lock = threading.Condition()
-        self._belief_msg = None
-        self._before_reset = False  # a reset was asked for; its belief (step 0) not yet in
+        self._beliefs = BeliefInbox()
         self._cube_pose = None
         self._observations = ObservationTally()
         self._belief_health = None  # (values, monotonic time) of the belief node's status
@@ -155,17 +154,11 @@ class PlannerNode(ManagedNode):
                 # The reset's own belief, refused for its stamp (a clock that jumped): the
                 # corrections after it are still this episode's, so it must not hold the
                 # episode back until the observation timeout.
-                with self._belief_lock:
-                    self._before_reset = False
+                self._beliefs.reset_belief_refused()
             raise
         self._belief_stamps.taken(msg.header.stamp)
-        with self._belief_lock:
-            if self._before_reset and msg.step != 0:
-                return   # latched or in flight from before the reset: not this episode's
-            self._before_reset = False
-            self._belief_msg = msg
-            self._belief_lock.notify_all()
-        self._publish_markers()
+        if self._beliefs.offer(msg):   # else latched or in flight from before the reset
+            self._publish_markers()
 
     def _on_observation(self, msg: AspectObservation):
         input_checks.aspect_observation(msg)
@@ -268,24 +261,18 @@ class PlannerNode(ManagedNode):
         self._rejected_at_reset = collections.Counter(dict(self.health.stats.rejected))
         # The belief node's messages arrive in order, so the first belief at step 0 from
         # now on is the reset's own; the evidence waits skip everything before it.
-        with self._belief_lock:
-            self._before_reset = True
-            self._belief_msg = None  # the last episode's: not to be planned on in this one
+        self._beliefs.reset_asked()
         response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
         if response is None or not response.success:
             raise RecognitionAborted('belief reset failed: '
                                      f'{response.message if response else "no answer"}')
 
     def wait_for_belief(self, predicate, timeout_s):
-        deadline = time.monotonic() + timeout_s
-        with self._belief_lock:
-            while self._before_reset or self._belief_msg is None \
-                    or not predicate(self._belief_msg):
-                remaining = deadline - time.monotonic()
-                if remaining <= 0 or not rclpy.ok(context=self.context):
-                    return None
-                self._belief_lock.wait(min(remaining, 0.1))
-            return self._belief_msg
+        return self._beliefs.wait(predicate, timeout_s,
+                                  lambda: rclpy.ok(context=self.context))
+
+    def belief_restarted(self):
+        return self._beliefs.take_restart()
 
     def observations_since_reset(self):
         health = self._belief_health
@@ -298,8 +285,7 @@ class PlannerNode(ManagedNode):
         return f'{self._observations.describe()}{rejected}; {report}'
 
     def latest_belief(self):
-        with self._belief_lock:
-            return self._belief_msg
+        return self._beliefs.latest()
 
     def cancel_requested(self):
         return self._goal_handle.is_cancel_requested
@@ -377,8 +363,7 @@ class PlannerNode(ManagedNode):
         self._executed_pub.publish(msg)
 
     def _publish_markers(self):
-        with self._belief_lock:
-            belief = self._belief_msg
+        belief = self._beliefs.latest()
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg()))
 

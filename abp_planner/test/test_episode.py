@@ -104,6 +104,9 @@ class FakePorts:
     def latest_belief(self):
         return self.belief
 
+    def belief_restarted(self):
+        return False
+
     def check_feasibility(self):
         self.feasibility_checks += 1
         feasible = self.feasible

@@ -131,7 +131,7 @@ if [ "$USE_SYSTEM_ROS" = 1 ]; then
   "$VENV/bin/python" -c 'import colcon_core' 2>/dev/null \
     || die "colcon is not importable from $VENV: sudo apt install python3-colcon-common-extensions"
   "$VENV/bin/python" -c 'import pinocchio' 2>/dev/null \
-    || die "pinocchio is not importable: sudo apt install ros-jazzy-pinocchio (or rosdep install --from-paths . --ignore-src -y); PyPI's pin needs NumPy 2 (requirements/robot.txt)"
+    || die "pinocchio is not importable: sudo apt install ros-jazzy-pinocchio (or rosdep install --from-paths abp_* --ignore-src -y); PyPI's pin needs NumPy 2 (requirements/robot.txt)"
   "$VENV/bin/python" -m colcon build --base-paths "${PACKAGES[@]}" --event-handlers console_direct- \
     --cmake-args -DBUILD_TESTING=OFF "-DPython3_EXECUTABLE=$VENV/bin/python"
 else

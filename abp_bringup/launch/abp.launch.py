@@ -13,11 +13,14 @@ contact rules and the flat renderer; fast). `tables` chooses the hand-written AT
 (docs/MODEL.md): corrected or paper; empty (the default) means paper in the rules world,
 whose physics it is, and corrected otherwise, as start_graph.sh --tables.
 
-The model-set parameters (models, seed, tables) go to every node in a dictionary after
-config/abp.yaml, so they override its `/**:` section (a node that does not declare one
-ignores it). Not with `SetParameter`: launch_ros passes those before the node's own
-parameter files, so abp.yaml's `/**:` values would win. `namespace` puts every node (and
-so every topic, service and action, all relative) under that namespace.
+The arguments must override config/abp.yaml, and rcl merges parameter sources by node
+entry (`/**`, then `/**/planner`, ... in the order they first appear), not by the order
+of the files. So every Node is given its `name`: launch_ros then writes its dictionaries
+under the node's full name, an entry after all of abp.yaml's, which wins. The model-set
+parameters (models, seed, tables) go to every node that way (a node that does not
+declare one ignores it); not with `SetParameter`, whose values launch_ros passes before
+the parameter files, so abp.yaml's `/**:` would win. `namespace` puts every node (and so
+every topic, service and action, all relative) under that namespace.
 
 As in start_graph.sh, every managed node starts with `autostart: false` and the
 lifecycle manager (`abp_bringup lifecycle_manager`) configures and activates them in
@@ -69,8 +72,9 @@ def generate_launch_description():
         if managed:
             params.append({'autostart': False})
             kw.update(respawn=True, respawn_delay=1.0, respawn_max_retries=RESPAWN_MAX_RETRIES)
-        return Node(package=package, executable=executable, namespace=namespace,
-                    output='screen', parameters=params, **kw)
+        # Each executable's node has the executable's name.
+        return Node(package=package, executable=executable, name=executable,
+                    namespace=namespace, output='screen', parameters=params, **kw)
 
     def manager(node_names, condition):
         return node('abp_bringup', 'lifecycle_manager', {'node_names': node_names},

@@ -25,6 +25,7 @@ import importlib.util
 import itertools
 import math
 import pathlib
+import re
 import sys
 
 import pytest
@@ -175,7 +176,14 @@ class Evaluator:
 
 
 def launched(launch, overrides):
-    """[(node name, Node, {parameter: (value, source)})], {global parameter: value}."""
+    """[(node name, Node, {parameter: (value, source)}, evaluator)], {SetParameter: value}.
+
+    The parameters a node ends up with, merged as rcl and rclpy merge them: every source
+    (a SetParameter is a `-p` for `/**`, a parameter file's sections, a dictionary written
+    by launch_ros under `/**` or, for a Node with a name, under its full name) adds to the
+    entry of its node-name key; the entries are then applied in the order the keys first
+    appeared (rclpy node.cpp, _populate_node_parameters_from_rcl_params), so a later file
+    does not override an earlier node-specific section."""
     _, description, modules = launch
     actions = modules['launch.actions']
     ros = modules['launch_ros.actions']
@@ -192,7 +200,6 @@ def launched(launch, overrides):
     evaluate = Evaluator(modules, arguments)
     config = config_file()
     global_params = {}
-    nodes = []
     for entity in description.entities:
         if isinstance(entity, ros.SetParameter) and evaluate.holds(entity.condition):
             global_params[evaluate.text(entity.name)] = evaluate.parameter(entity.value)
@@ -200,22 +207,33 @@ def launched(launch, overrides):
     # A dictionary every Node gets is for the whole graph, as `/**:` in abp.yaml.
     shared = set.intersection(*({id(p) for p in e.parameters if isinstance(p, dict)}
                                 for e in all_nodes))
+    nodes = []
     for entity in all_nodes:
         if not evaluate.holds(entity.condition):
             continue
         name = evaluate.text(entity.name) if entity.name else evaluate.text(entity.executable)
-        given = {key: (value, 'SetParameter') for key, value in global_params.items()}
+        namespace = evaluate.text(entity.namespace or '').strip('/')
+        full_name = f'/{namespace}/{name}' if namespace else f'/{name}'
+        entries = {}  # node-name key -> {parameter: (value, source)}, in first-seen order
+
+        def add(key, params, source):
+            entries.setdefault(key, {}).update(
+                {param: (value, source) for param, value in params.items()})
+
+        add('/**', global_params, 'SetParameter')
         for source in entity.parameters:
             if isinstance(source, dict):
                 kind = 'graph-wide launch dict' if id(source) in shared else 'launch dict'
-                given.update({key: (evaluate.parameter(value), kind)
-                              for key, value in source.items()})
+                key = full_name if entity.name is not None else '/**'
+                add(key, {k: evaluate.parameter(v) for k, v in source.items()}, kind)
             else:
                 assert pathlib.Path(evaluate.text(source)).name == 'abp.yaml'
-                for section in ('/**', f'/**/{name}'):
-                    params = (config.get(section) or {}).get('ros__parameters', {})
-                    given.update({key: (value, f'abp.yaml {section}')
-                                  for key, value in params.items()})
+                for section, body in config.items():
+                    add(section, (body or {}).get('ros__parameters', {}), f'abp.yaml {section}')
+        given = {}
+        for key, params in entries.items():
+            if re.fullmatch(key.replace('/*', r'(/\w+)'), full_name):
+                given.update(params)
         nodes.append((name, entity, given, evaluate))
     return nodes, global_params
 
@@ -276,6 +294,55 @@ def test_launch_arguments_reach_the_nodes(launch):
     robot, _ = launched(launch, {'sim': 'false'})
     assert 'sim_bridge' not in {name for name, *_ in robot}
     assert all(given.get('use_sim_time', (False,))[0] is False for _, _, given, _ in robot)
+
+
+def ros_arguments(node, evaluate, global_params, tmp_path):
+    """The --ros-args launch_ros (Jazzy, Node._perform_substitutions) gives the process:
+    `-p` per SetParameter, then each parameter source in order, a dictionary as a file
+    keyed by the node's full name when it has a name, else by `/**`."""
+    args = []
+    for key, value in global_params.items():
+        args += ['-p', f'{key}:={yaml.safe_dump(value).splitlines()[0]}']
+    name = evaluate.text(node.name) if node.name else None
+    namespace = evaluate.text(node.namespace or '').strip('/')
+    for index, source in enumerate(node.parameters):
+        if isinstance(source, dict):
+            key = (f'/{namespace}/{name}' if namespace else f'/{name}') if name else '/**'
+            path = tmp_path / f'{evaluate.text(node.executable)}-{index}.yaml'
+            path.write_text(yaml.safe_dump({key: {'ros__parameters': {
+                k: evaluate.parameter(v) for k, v in source.items()}}}))
+            args += ['--params-file', str(path)]
+        else:
+            args += ['--params-file', evaluate.text(source)]
+    return args
+
+
+def test_the_merge_above_is_what_rclpy_does(launch, tmp_path):
+    """The evaluation these tests rely on, checked against real rcl/rclpy: each launched
+    node's --ros-args, as launch_ros builds them, given to a real rclpy node of that name
+    and namespace that declares whatever it is given."""
+    asked = {'sim': 'true', 'world': 'rules', 'models': 'full', 'seed': '3',
+             'tables': 'corrected', 'planner': 'abp', 'namespace': 'robot1'}
+    nodes, global_params = launched(launch, asked)
+    for name, node, given, evaluate in nodes:
+        context = rclpy.context.Context()
+        args = ros_arguments(node, evaluate, global_params, tmp_path)
+        rclpy.init(args=['--ros-args', *args], context=context)
+        try:
+            real = rclpy.create_node(name, namespace='/robot1', context=context,
+                                     automatically_declare_parameters_from_overrides=True)
+            try:
+                got = {key: param.value for key, param in real._parameters.items()}
+            finally:
+                real.destroy_node()
+        finally:
+            rclpy.try_shutdown(context=context)
+        expected = {key: value for key, (value, _) in given.items()}
+        got = {key: list(value) if isinstance(value, (list, tuple)) else value
+               for key, value in got.items() if key in expected}
+        expected = {key: list(value) if isinstance(value, (list, tuple)) else value
+                    for key, value in expected.items()}
+        assert got == expected, f'{name}: rclpy {got} != evaluated {expected}'
 
 
 def check_value(spec, value, what):

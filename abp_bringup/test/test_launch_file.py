@@ -9,8 +9,10 @@ values read as YAML), for every combination of the launch arguments that matter.
 - every (package, executable) it starts is installed in install/<pkg>/lib/<pkg>/;
 - every parameter a node is given (its dictionaries, any SetParameter, and the keys of
   config/abp.yaml that apply to it) is declared by that node, with a value of the declared
-  type that passes the declared range and choices, and the launch arguments reach the nodes
-  (later sources override earlier ones, in launch_ros's order). The declarations are the nodes' own
+  type that passes the declared range and choices, and the launch arguments reach the
+  nodes. Sources are merged as rcl/rclpy merge them (by node-name entry in first-seen
+  order, not file by file), and that merge is itself checked against a real rclpy node
+  given the --ros-args launch_ros would build. The declarations are the nodes' own
   ParamSpec tables (abp_common.parameters.declare_all), loaded in-process;
 - a configuration error is not respawned in a loop. Managed nodes start with
   `autostart: false`, so a bad parameter makes configure fail while the process stays up,

@@ -5,7 +5,9 @@
 #   ABP_FORCE_BUILD=1 scripts/bootstrap.sh   # rebuild even when the sources look unchanged
 #
 # Where /opt/ros/jazzy exists (a robot, a ROS Docker image) it uses that ROS and
-# installs only the few extra Python packages (requirements/robot.txt). Otherwise
+# installs only the few extra Python packages (requirements/robot.txt, pinned to keep
+# Ubuntu 24.04's NumPy 1.26) into a --system-site-packages venv, then builds with
+# that venv's Python so every entry point runs with it. Otherwise
 # it creates .venv/ from the pinned ROS 2 Jazzy wheels on PyPI
 # (requirements/requirements.txt + requirements/constraints.txt) and applies the
 # fixes those wheels need (see shared/ROS_WHEELS.md).
@@ -120,8 +122,18 @@ if [ "$USE_SYSTEM_ROS" = 1 ]; then
   # shellcheck disable=SC1091
   set +u; source "$ROS_DISTRO_DIR/setup.bash"; set -u
   export PATH="$VENV/bin:$PATH"
-  colcon build --base-paths "${PACKAGES[@]}" --event-handlers console_direct- \
-    --cmake-args -DBUILD_TESTING=OFF
+  # colcon writes its own interpreter (sys.executable) into every entry point's
+  # shebang, so run apt's colcon with the venv's Python (the venv sees apt's packages
+  # through --system-site-packages): `ros2 run` then starts the nodes with an
+  # interpreter that imports both rclpy and the pinned packages of robot.txt. The apt
+  # `colcon` script would write #!/usr/bin/python3, which cannot import cv2, ruckig,
+  # rosbags or mujoco (ros2/ros2cli#1024).
+  "$VENV/bin/python" -c 'import colcon_core' 2>/dev/null \
+    || die "colcon is not importable from $VENV: sudo apt install python3-colcon-common-extensions"
+  "$VENV/bin/python" -c 'import pinocchio' 2>/dev/null \
+    || die "pinocchio is not importable: sudo apt install ros-jazzy-pinocchio (or rosdep install --from-paths abp_* --ignore-src -y); PyPI's pin needs NumPy 2 (requirements/robot.txt)"
+  "$VENV/bin/python" -m colcon build --base-paths "${PACKAGES[@]}" --event-handlers console_direct- \
+    --cmake-args -DBUILD_TESTING=OFF "-DPython3_EXECUTABLE=$VENV/bin/python"
 else
   # Pitfall 2: CMake finds the wheels' share/ and lib/ through these prefixes.
   export AMENT_PREFIX_PATH="$VENV${AMENT_PREFIX_PATH:+:$AMENT_PREFIX_PATH}"

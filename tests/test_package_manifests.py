@@ -15,10 +15,15 @@ REPO = pathlib.Path(__file__).resolve().parent.parent
 PACKAGES = sorted(p.parent for p in REPO.glob('abp_*/package.xml'))
 # Import name -> rosdep key, where they differ.
 ROSDEP_KEY = {
-    'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'cv2': 'python3-opencv',
-    'yaml': 'python3-yaml', 'matplotlib': 'python3-matplotlib', 'tqdm': 'python3-tqdm',
-    'pytest': 'python3-pytest', 'mujoco': 'python3-mujoco', 'OpenGL': 'python3-opengl',
+    'numpy': 'python3-numpy', 'scipy': 'python3-scipy', 'yaml': 'python3-yaml',
+    'matplotlib': 'python3-matplotlib', 'tqdm': 'python3-tqdm', 'pytest': 'python3-pytest',
+    'OpenGL': 'python3-opengl',
 }
+# Imports no rosdep key provides in a usable version (tests/fixtures/rosdistro/
+# rosdep_keys.yaml says why): pinned in requirements/robot.txt instead, and named in
+# requirements/requirements.txt for the wheel install. Import name -> PyPI name.
+FROM_ROBOT_TXT = {'cv2': 'opencv-python-headless', 'mujoco': 'mujoco', 'rosbags': 'rosbags',
+                  'ruckig': 'ruckig'}
 NOT_DEPENDENCIES = {'setuptools'} | set(sys.stdlib_module_names)
 # What a robot install must never need (issue 11): the simulator and benchmark tooling.
 BENCH_ONLY = {'abp_sim_bridge', 'python3-matplotlib', 'python3-tqdm'}
@@ -40,6 +45,8 @@ def imported_keys(files, own):
                 top = name.split('.')[0]
                 if top in NOT_DEPENDENCIES or top == own or top in {'tests', 'conftest'}:
                     continue
+                if top in FROM_ROBOT_TXT:
+                    continue  # test_pip_only_imports_are_pinned_for_the_robot
                 keys.setdefault(ROSDEP_KEY.get(top, top), path.relative_to(REPO))
     return keys
 
@@ -88,3 +95,21 @@ def test_node_file_is_short(path):
     lines = len(path.read_text().splitlines())
     assert lines <= MAX_NODE_FILE_LINES, \
         f'{path.relative_to(REPO)} has {lines} lines (at most {MAX_NODE_FILE_LINES})'
+
+
+def requirement_names(path):
+    names = {}
+    for line in path.read_text().splitlines():
+        line = line.split('#')[0].strip()
+        if line:
+            name, _, version = line.partition('==')
+            names[name.strip().lower()] = version.strip()
+    return names
+
+
+def test_pip_only_imports_are_pinned_for_the_robot():
+    robot = requirement_names(REPO / 'requirements' / 'robot.txt')
+    wheels = requirement_names(REPO / 'requirements' / 'requirements.txt')
+    for module, name in FROM_ROBOT_TXT.items():
+        assert robot.get(name), f'requirements/robot.txt lacks an exact pin of {name} ({module})'
+        assert name in wheels, f'requirements/requirements.txt lacks {name} ({module})'

@@ -1,6 +1,9 @@
-"""Launch the whole abp graph on a robot with launch_ros (untested here: launch_ros
-is not installable from PyPI; scripts/start_graph.sh is the tested equivalent and
-starts the same nodes with the same parameters file).
+"""Launch the whole abp graph on a robot with launch_ros. launch_ros is not installable
+from PyPI, so it never runs here; abp_bringup/test/test_launch_file.py imports it against
+stand-ins of launch/launch_ros and checks what it builds (every executable installed,
+every parameter declared by its node with a valid value, no respawn loop).
+scripts/start_graph.sh is the tested equivalent and starts the same nodes with the same
+parameters file.
 
     ros2 launch abp_bringup abp.launch.py sim:=true world:=mujoco models:=robot planner:=cost \
         seed:=0 namespace:=robot1 tables:=corrected
@@ -10,14 +13,23 @@ contact rules and the flat renderer; fast). `tables` chooses the hand-written AT
 (docs/MODEL.md): corrected or paper; empty (the default) means paper in the rules world,
 whose physics it is, and corrected otherwise, as start_graph.sh --tables.
 
-The model-set parameters are set once for every node (`SetParameter`, the launch form
-of the `/**:` section in config/abp.yaml); `namespace` puts every node (and so every
-topic, service and action, all relative) under that namespace.
+The arguments must override config/abp.yaml, and rcl merges parameter sources by node
+entry (`/**`, then `/**/planner`, ... in the order they first appear), not by the order
+of the files. So every Node is given its `name`: launch_ros then writes its dictionaries
+under the node's full name, an entry after all of abp.yaml's, which wins. The model-set
+parameters (models, seed, tables) go to every node that way (a node that does not
+declare one ignores it); not with `SetParameter`, whose values launch_ros passes before
+the parameter files, so abp.yaml's `/**:` would win. `namespace` puts every node (and so
+every topic, service and action, all relative) under that namespace.
 
-As in start_graph.sh, every managed node starts with `autostart: false` (respawned after
-1 s when it dies) and the lifecycle manager (`abp_bringup lifecycle_manager`) configures
-and activates them in dependency order, logs `graph ready` once they are all active and
-their topics matched, and brings a respawned node back to active.
+As in start_graph.sh, every managed node starts with `autostart: false` and the
+lifecycle manager (`abp_bringup lifecycle_manager`) configures and activates them in
+dependency order, logs `graph ready` once they are all active and their topics matched,
+and brings a respawned node back to active. With autostart false a bad parameter makes
+configure fail and the node stays up, unconfigured, with the reason in its log: there is
+no exit to respawn. A node that dies is respawned after 1 s, at most
+RESPAWN_MAX_RETRIES times (launch cannot tell a crash from an exit that a restart cannot
+fix, so a crash loop must end). The lifecycle manager itself is not respawned.
 """
 
 import os
@@ -27,7 +39,15 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
-from launch_ros.actions import Node, SetParameter
+from launch_ros.actions import Node
+
+RESPAWN_MAX_RETRIES = 3
+# The choices of the nodes' own parameters (model_set, planner_mode, world, transition_rules;
+# the test checks they match): a wrong value stops `ros2 launch` at once.
+MODEL_SETS = ['robot', 'random', 'full', 'visual']
+PLANNERS = ['random', 'abp', 'abp2', 'abp3', 'cost']
+WORLDS = ['mujoco', 'rules']
+TABLES = ['corrected', 'paper']
 
 
 def generate_launch_description():
@@ -39,13 +59,22 @@ def generate_launch_description():
         "'", LaunchConfiguration('tables'), "' or ('paper' if '", sim, "' == 'true' and '",
         LaunchConfiguration('world'), "' == 'rules' else 'corrected')"])
 
+    # The model set, once for the whole graph (as `/**:` in a parameters file).
+    model_set = {'model_set': LaunchConfiguration('models'),
+                 'seed': LaunchConfiguration('seed'), 'transition_rules': tables}
+
     def node(package, executable, extra=None, sim_time=True, managed=True, **kw):
-        params = [config, {'use_sim_time': use_sim_time} if sim_time else {}, extra or {}]
+        params = [config, model_set]
+        if sim_time:
+            params.append({'use_sim_time': use_sim_time})
+        if extra:
+            params.append(extra)
         if managed:
             params.append({'autostart': False})
-            kw.update(respawn=True, respawn_delay=1.0)
-        return Node(package=package, executable=executable, namespace=namespace,
-                    output='screen', parameters=params, **kw)
+            kw.update(respawn=True, respawn_delay=1.0, respawn_max_retries=RESPAWN_MAX_RETRIES)
+        # Each executable's node has the executable's name.
+        return Node(package=package, executable=executable, name=executable,
+                    namespace=namespace, output='screen', parameters=params, **kw)
 
     def manager(node_names, condition):
         return node('abp_bringup', 'lifecycle_manager', {'node_names': node_names},
@@ -56,25 +85,24 @@ def generate_launch_description():
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
         DeclareLaunchArgument('world', default_value='mujoco',
-                              description='sim world: mujoco or rules',
-                              choices=['mujoco', 'rules']),
+                              description='sim world: mujoco or rules', choices=WORLDS),
         DeclareLaunchArgument('models', default_value='robot',
-                              description='model set: robot, random, full or visual'),
+                              description='model set: robot, random, full or visual',
+                              choices=MODEL_SETS),
         DeclareLaunchArgument('planner', default_value='cost',
-                              description='random, abp, abp2, abp3 or cost'),
-        DeclareLaunchArgument('seed', default_value='0', description='model-set seed'),
+                              description='random, abp, abp2, abp3 or cost', choices=PLANNERS),
+        DeclareLaunchArgument('seed', default_value='0',
+                              description='model-set seed (and, in sim, of the hidden cube)'),
         DeclareLaunchArgument('tables', default_value='',
                               description='hand-written ATG table: corrected or paper '
                               '(empty: paper in the rules world, else corrected)',
-                              choices=['', 'corrected', 'paper']),
+                              choices=[''] + TABLES),
         DeclareLaunchArgument('namespace', default_value='',
                               description='namespace of every node (empty = the root)'),
-        # The model set, once for the whole graph (as `/**:` in a parameters file).
-        SetParameter(name='model_set', value=LaunchConfiguration('models')),
-        SetParameter(name='seed', value=LaunchConfiguration('seed')),
-        SetParameter(name='transition_rules', value=tables),
         # The sim bridge publishes /clock, so it runs on wall time.
-        node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world')},
+        # The hidden cube drawn with the same seed, as start_graph.sh --seed.
+        node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world'),
+                                              'cube_seed': LaunchConfiguration('seed')},
              sim_time=False, condition=IfCondition(sim)),
         node('abp_perception', 'artag_detector'),
         node('abp_perception', 'aspect_matcher'),

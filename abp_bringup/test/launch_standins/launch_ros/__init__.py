@@ -1,0 +1,1 @@
+"""Stand-in for ROS 2 Jazzy's `launch_ros` package (see ../README.md)."""

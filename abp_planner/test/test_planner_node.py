@@ -407,15 +407,15 @@ def test_the_reset_belief_and_the_first_correction_are_taken_in_order(monkeypatc
             0.05, lambda: beliefs.get_subscription_count() >= 1 and matched.set())
         assert matched.wait(30), 'the planner did not subscribe to /abp/belief'
         stand_in.destroy_timer(timer)
-        with planner._belief_lock:     # what reset_belief() does before the reset call
-            planner._before_reset = True
+        planner._beliefs.reset_asked()     # what reset_belief() does before the reset call
         models = robot_set(seed=SEED)
         now_ns = stand_in.get_clock().now().nanoseconds
         beliefs.publish(undecided_belief(models, 0, now_ns))
         beliefs.publish(undecided_belief(models, 1, now_ns))
         first = planner.wait_for_belief(lambda b: b.step >= 1, 10.0)
+        latest = planner.latest_belief()
         assert first is not None and first.step == 1, \
-            f'the planner holds step {planner._belief_msg and planner._belief_msg.step}'
+            f'the planner holds step {latest and latest.step}'
     finally:
         executor.shutdown()
         if spinner is not None:

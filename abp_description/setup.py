@@ -13,6 +13,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/urdf', glob('urdf/*.urdf')),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
+        ('share/' + PACKAGE + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools'],
     zip_safe=True,
@@ -20,11 +21,13 @@ setup(
     maintainer_email='abp-maintainers@example.com',
     description=(
         'URDF and camera intrinsics of the '
-        'uBot-6-like robot, with a Pinocchio kinematics helper.'
+        'uBot-6-like robot, with a Pinocchio kinematics helper and the robot_state '
+        'node that publishes its tf tree.'
     ),
     license='Apache-2.0',
     entry_points={
         'console_scripts': [
+            'robot_state = abp_description.robot_state_node:main',
         ],
     },
 )

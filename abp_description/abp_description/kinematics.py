@@ -22,9 +22,15 @@ BASE_FRAME = 'base_link'
 class RobotKinematics:
     """Pinocchio model of the robot with a joint-state-shaped interface."""
 
-    def __init__(self, urdf=None):
-        self.urdf_path = str(urdf) if urdf is not None else urdf_path()
-        self.model = pin.buildModelFromUrdf(self.urdf_path)
+    def __init__(self, urdf=None, urdf_xml=None):
+        """From the URDF file `urdf` (default: abp's), or from the URDF text `urdf_xml`
+        (a robot_description received on a topic; `urdf_path` then names no file)."""
+        if urdf_xml is not None:
+            self.urdf_path = '<robot_description>'
+            self.model = pin.buildModelFromXML(urdf_xml)
+        else:
+            self.urdf_path = str(urdf) if urdf is not None else urdf_path()
+            self.model = pin.buildModelFromUrdf(self.urdf_path)
         self.data = self.model.createData()
         joints = list(self.model.joints)[1:]  # skip 'universe'
         self.joint_names = tuple(self.model.names[1:])

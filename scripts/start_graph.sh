@@ -209,6 +209,8 @@ if [ "$robot" = 0 ]; then
   start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
     -p "cube_seed:=$seed" -p "speedup:=$speedup"
 fi
+# The robot's tf tree (/tf, /tf_static, robot_description) from /joint_states and /odom.
+start_managed abp_description robot_state
 start_managed abp_perception artag_detector
 start_managed abp_perception aspect_matcher
 start_managed abp_belief belief

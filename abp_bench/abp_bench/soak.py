@@ -59,6 +59,7 @@ from .graph_benchmark import FAULTS_YAML, repo_root, terminate_with_parent
 # The graph's long-running nodes: node name -> (package, executable).
 GRAPH_NODES = {
     'sim_bridge': ('abp_sim_bridge', 'sim_bridge'),
+    'robot_state': ('abp_description', 'robot_state'),
     'artag_detector': ('abp_perception', 'artag_detector'),
     'aspect_matcher': ('abp_perception', 'aspect_matcher'),
     'belief': ('abp_belief', 'belief'),

@@ -39,9 +39,10 @@ from abp_common.node_runner import run_node
 from abp_common.param_spec import BOOL, DOUBLE, STRING_ARRAY, ParamSpec
 from abp_common.parameters import declare_all
 
-# Dependency order: the sim bridge's clock and sensors first, the planner last.
-GRAPH_NODES = ('sim_bridge', 'artag_detector', 'aspect_matcher', 'belief', 'skill_servers',
-               'planner')
+# Dependency order: the sim bridge's clock and sensors first, then the robot's tf tree
+# (robot_state), the planner last.
+GRAPH_NODES = ('sim_bridge', 'robot_state', 'artag_detector', 'aspect_matcher', 'belief',
+               'skill_servers', 'planner')
 READY_LINE = 'graph ready'
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}

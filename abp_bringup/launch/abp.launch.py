@@ -80,7 +80,8 @@ def generate_launch_description():
         return node('abp_bringup', 'lifecycle_manager', {'node_names': node_names},
                     sim_time=False, managed=False, condition=condition)
 
-    graph = ['artag_detector', 'aspect_matcher', 'belief', 'skill_servers', 'planner']
+    graph = ['robot_state', 'artag_detector', 'aspect_matcher', 'belief', 'skill_servers',
+             'planner']
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
@@ -104,6 +105,7 @@ def generate_launch_description():
         node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world'),
                                               'cube_seed': LaunchConfiguration('seed')},
              sim_time=False, condition=IfCondition(sim)),
+        node('abp_description', 'robot_state'),  # /tf, /tf_static, robot_description
         node('abp_perception', 'artag_detector'),
         node('abp_perception', 'aspect_matcher'),
         node('abp_belief', 'belief'),

@@ -2,6 +2,12 @@
 
 Message construction only (no rclpy): a CUBE marker at the aspect matcher's latest
 pose estimate, and a text marker above it listing the most probable objects.
+
+Both are stamped in the observation's frame (base_link) at the observation's stamp (the
+image's), which the robot_state node's /tf covers: RViz, with the fixed frame odom,
+places them where the base was when the cube was seen, not where it is when the marker
+is drawn (a stamp of zero would mean "latest"). RViz keeps about 10 s of /tf, so a
+marker republished (a new belief) long after the last sighting keeps its old place.
 """
 
 from geometry_msgs.msg import Pose
@@ -9,20 +15,24 @@ from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
 CUBE_EDGE = 0.10
+BASE_FRAME = 'base_link'   # an observation without a frame is in the base frame
 TOP_OBJECTS_SHOWN = 3
 
 
 def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE):
     """MarkerArray for `belief` (abp_msgs/Belief or None) and `cube_pose`
-    ((frame_id, geometry_msgs/Pose) or None)."""
+    ((frame_id, geometry_msgs/Pose, stamp of the observation) or None); `stamp` (now)
+    stamps the DELETEALL sent while there is no cube pose."""
     markers = MarkerArray()
     if cube_pose is None:
-        markers.markers.append(Marker(ns='abp', id=0, action=Marker.DELETEALL))
+        clear = Marker(ns='abp', id=0, action=Marker.DELETEALL)
+        clear.header.frame_id, clear.header.stamp = BASE_FRAME, stamp
+        markers.markers.append(clear)
         return markers
-    frame_id, pose = cube_pose
+    frame_id, pose, seen = cube_pose
     cube = Marker(ns='abp_cube', id=0, type=Marker.CUBE, action=Marker.ADD, pose=pose)
-    cube.header.frame_id = frame_id or 'base_link'
-    cube.header.stamp = stamp
+    cube.header.frame_id = frame_id or BASE_FRAME
+    cube.header.stamp = seen
     cube.scale.x = cube.scale.y = cube.scale.z = cube_edge
     confidence = float(belief.probabilities[0]) if belief and belief.probabilities else 0.0
     # Red while uncertain, green once the belief has condensed.

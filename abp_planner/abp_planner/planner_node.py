@@ -166,7 +166,8 @@ class PlannerNode(ManagedNode):
         self._observation_stamps.taken(msg.header.stamp)
         self._observations.add(len(msg.hypotheses), (f.type for f in msg.features))
         if msg.hypotheses:
-            self._cube_pose = (msg.header.frame_id, msg.hypotheses[0].object_pose.pose)
+            self._cube_pose = (msg.header.frame_id, msg.hypotheses[0].object_pose.pose,
+                               msg.header.stamp)
             self._publish_markers()
 
     def _on_diagnostics(self, msg: DiagnosticArray):

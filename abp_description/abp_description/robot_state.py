@@ -146,8 +146,9 @@ class PublishThrottle:
 
 
 class PoseHistory:
-    """Stamped 4x4 poses of one frame (odometry), kept for `span_s` seconds of stamps;
-    `at(stamp)` interpolates between the two nearest (never extrapolates), as tf2 does."""
+    """Stamped poses of one frame (odometry) as (translation, unit quaternion x, y, z, w),
+    kept for `span_s` seconds of stamps; `at(stamp)` is the 4x4 pose interpolated between
+    the two nearest (never extrapolated), as tf2 does."""
 
     def __init__(self, span_s=10.0):
         self.span_ns = int(span_s * _NS)
@@ -157,15 +158,16 @@ class PoseHistory:
     def __len__(self):
         return len(self._stamps)
 
-    def add(self, stamp_ns, pose):
+    def add(self, stamp_ns, translation, quaternion):
+        pose = (translation, quaternion)
         if self._stamps and stamp_ns < self._stamps[-1]:
             self.clear()   # time went back (a restarted simulation, a replay)
         if self._stamps and stamp_ns == self._stamps[-1]:
-            self._poses[-1] = np.asarray(pose, dtype=float)
+            self._poses[-1] = pose
             return
         self._stamps.append(int(stamp_ns))
-        self._poses.append(np.asarray(pose, dtype=float))
-        while self._stamps and self._stamps[0] < stamp_ns - self.span_ns:
+        self._poses.append(pose)
+        while self._stamps[0] < stamp_ns - self.span_ns:
             self._stamps.popleft()
             self._poses.popleft()
 
@@ -173,18 +175,18 @@ class PoseHistory:
         self._stamps.clear()
         self._poses.clear()
 
-    def latest(self):
-        return (self._stamps[-1], self._poses[-1]) if self._stamps else None
+    def latest_stamp(self):
+        return self._stamps[-1] if self._stamps else None
 
     def at(self, stamp_ns):
-        """The pose at `stamp_ns`, or None when it is outside the history."""
+        """The 4x4 pose at `stamp_ns`, or None when it is outside the history."""
         stamps = self._stamps
         if not stamps or not stamps[0] <= stamp_ns <= stamps[-1]:
             return None
         i = int(np.searchsorted(np.fromiter(stamps, dtype=np.int64), stamp_ns))
         if stamps[i] == stamp_ns:
-            return self._poses[i].copy()
-        return interpolate(self._poses[i - 1], self._poses[i],
+            return matrix_from(*self._poses[i])
+        return interpolate(matrix_from(*self._poses[i - 1]), matrix_from(*self._poses[i]),
                            (stamp_ns - stamps[i - 1]) / (stamps[i] - stamps[i - 1]))
 
 

@@ -19,6 +19,7 @@ absolute, as tf2_ros has them. Science in abp_description.robot_state; this modu
 converts messages and parameters.
 """
 
+import math
 import sys
 
 from geometry_msgs.msg import TransformStamped
@@ -69,11 +70,6 @@ def transform_msg(parent, child, translation, quaternion, stamp, msg=None):
     return msg
 
 
-def matrix_msg(parent, child, matrix, stamp):
-    """transform_msg of a 4x4 pose."""
-    return transform_msg(parent, child, *translation_quaternion(matrix), stamp)
-
-
 def pose_matrix(pose):
     """4x4 of a geometry_msgs/Pose."""
     p, o = pose.position, pose.orientation
@@ -103,7 +99,8 @@ class RobotStateNode(ManagedNode):
         self._odometry = PoseHistory(self.values['odom_history'])
         self._odom_frame = None
         self._edge_msgs = {}         # Edge -> its TransformStamped, reused
-        self._cube = None            # 4x4 pose of the cube estimate in the odometry frame
+        self._odom_msg = TransformStamped()
+        self._cube = None            # the cube estimate in odom: (translation, quaternion)
         self._last_now_ns = 0
         self.health = NodeHealth(self)
         self.add_post_set_parameters_callback(self._after_set_parameters)
@@ -183,11 +180,16 @@ class RobotStateNode(ManagedNode):
         if parent != self._odom_frame:
             self._odometry.clear()
             self._odom_frame = parent
-        pose = pose_matrix(msg.pose.pose)
-        self._odometry.add(stamp_ns(msg.header.stamp), pose)
+        # Copied field by field (no matrix): this runs at the odometry's full rate.
+        p, o = msg.pose.pose.position, msg.pose.pose.orientation
+        norm = math.sqrt(o.x * o.x + o.y * o.y + o.z * o.z + o.w * o.w)
+        translation, quaternion = (p.x, p.y, p.z), (o.x / norm, o.y / norm, o.z / norm,
+                                                    o.w / norm)
+        self._odometry.add(stamp_ns(msg.header.stamp), translation, quaternion)
         transforms = []
         if self.values['enable_odom_tf']:
-            transforms.append(matrix_msg(parent, child, pose, msg.header.stamp))
+            transforms.append(transform_msg(parent, child, translation, quaternion,
+                                            msg.header.stamp, self._odom_msg))
         if self._cube is not None:
             transforms.append(self._cube_msg(msg.header.stamp))
         if transforms:
@@ -213,7 +215,7 @@ class RobotStateNode(ManagedNode):
                                               f'(kept: the last {self.values["odom_history"]:g}'
                                               ' s)')
             cube = odom_to_base @ cube
-        self._cube = cube
+        self._cube = translation_quaternion(cube)
         self._tf_pub.publish(TFMessage(transforms=[self._cube_msg(msg.header.stamp)]))
 
     # -- output ---------------------------------------------------------------------------
@@ -224,7 +226,7 @@ class RobotStateNode(ManagedNode):
         return msg
 
     def _cube_msg(self, stamp):
-        return matrix_msg(self._odom_frame, self.values['cube_frame'], self._cube, stamp)
+        return transform_msg(self._odom_frame, self.values['cube_frame'], *self._cube, stamp)
 
     def _publish_static(self):
         stamp = self.get_clock().now().to_msg()

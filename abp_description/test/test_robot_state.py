@@ -110,15 +110,18 @@ def pose(x, y, yaw):
 
 def test_pose_history_interpolates_and_never_extrapolates():
     history = PoseHistory(span_s=1.0)
-    history.add(1_000_000_000, pose(0.0, 0.0, 0.0))
-    history.add(1_100_000_000, pose(1.0, 0.0, 0.4))
+
+    def add(t_ns, x, y, yaw):
+        history.add(t_ns, *translation_quaternion(pose(x, y, yaw)))
+    add(1_000_000_000, 0.0, 0.0, 0.0)
+    add(1_100_000_000, 1.0, 0.0, 0.4)
     np.testing.assert_allclose(history.at(1_025_000_000), pose(0.25, 0.0, 0.1), atol=1e-12)
-    np.testing.assert_allclose(history.at(1_100_000_000), pose(1.0, 0.0, 0.4))
+    np.testing.assert_allclose(history.at(1_100_000_000), pose(1.0, 0.0, 0.4), atol=1e-12)
     assert history.at(999_999_999) is None and history.at(1_100_000_001) is None
-    history.add(2_150_000_000, pose(2.0, 0.0, 0.0))   # the first two fall out of the span
+    add(2_150_000_000, 2.0, 0.0, 0.0)   # the first two fall out of the span
     assert len(history) == 1
-    history.add(5, pose(0.0, 0.0, 0.0))               # time went back: start again
-    assert len(history) == 1 and history.latest()[0] == 5
+    add(5, 0.0, 0.0, 0.0)               # time went back: start again
+    assert len(history) == 1 and history.latest_stamp() == 5
 
 
 def test_interpolate_slerps_the_rotation():

@@ -21,6 +21,7 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from builtin_interfaces.msg import Time  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
 from rclpy.qos import QoSDurabilityPolicy, QoSProfile  # noqa: E402
 from scipy.spatial.transform import Rotation, Slerp  # noqa: E402
@@ -261,7 +262,8 @@ def test_tf_alone_recovers_the_detector_camera_pose(ros_processes, nodes, spin):
 def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
     """urdf_source topic: the tree comes from robot_description published by another node;
     enable_odom_tf false publishes no odom -> base_link; the cube estimate, seen in
-    base_link at a stamp between two odometry messages, is published as odom -> cube."""
+    base_link at a stamp between two odometry messages, is published as odom -> cube;
+    malformed inputs are counted in /diagnostics, not published."""
     make, executor = nodes
     proc = ros_processes.start([executable(), '--ros-args', '-p', 'urdf_source:=topic',
                                 '-p', 'enable_odom_tf:=false'])
@@ -320,4 +322,24 @@ def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
             break
     assert buffer.has('cube', t2), 'cube not held at a later odometry stamp'
     assert 'base_link' not in buffer.edges, 'odom -> base_link published with it off'
+
+    # Bad inputs are refused and counted in /diagnostics; the node goes on.
+    statuses = []
+    sender.create_subscription(DiagnosticArray, '/diagnostics', lambda m: statuses.extend(
+        s for s in m.status if s.name.endswith('robot_state: health')), 10)
+    joints_pub = sender.create_publisher(JointState, 'joint_states', RELIABLE)
+    assert spin(executor, lambda: joints_pub.get_subscription_count() > 0, 20)
+    wrong_child = odometry_msg(3, child='base_footprint')
+    nan_joint = JointState(name=['head_pan_joint'], position=[float('nan')])
+
+    def counted():
+        keys = {kv.key for kv in statuses[-1].values} if statuses else set()
+        return {'rejected odom frame', 'rejected joint_states non_finite'} <= keys
+    for _ in range(10):
+        odom_pub.publish(wrong_child)
+        joints_pub.publish(nan_joint)
+        if spin(executor, counted, 3):
+            break
+    assert counted(), statuses[-1].values if statuses else 'no /diagnostics'
+    assert not buffer.has('base_footprint', T0_NS + 3 * STEP_NS)
     assert proc.poll() is None

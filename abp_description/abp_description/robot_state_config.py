@@ -29,10 +29,11 @@ ROBOT_STATE_SPECS = (
     ParamSpec('cube_frame', STRING, 'cube',
               "tf frame of the aspect matcher's cube estimate (the best hypothesis of "
               'abp/aspect_observation), published as a child of the odometry frame at each '
-              'odometry stamp from the first estimate on; empty: not published.'),
+              'odometry stamp from the first estimate on; empty: not published.',
+              read_only=True),
     ParamSpec('odom_history', DOUBLE, 10.0,
               'Seconds of odometry kept to place a cube estimate, seen at an image stamp, in '
-              'the odometry frame (as a tf buffer cache).', (0.5, 600.0)),
+              'the odometry frame (as a tf buffer cache).', (0.5, 600.0), read_only=True),
 )
 
 __all__ = ['ROBOT_STATE_SPECS', 'URDF_FROM_FILE', 'URDF_FROM_TOPIC']

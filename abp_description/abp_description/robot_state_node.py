@@ -12,9 +12,10 @@ Publishes:   /tf                     (tf2_msgs/TFMessage, reliable, depth 100, a
 /tf carries, at each joint state's stamp, one transform per moving joint named in it (parent
 link -> child link, abp_description.robot_state.KinematicTree); with enable_odom_tf, the
 odometry's header.frame_id -> child_frame_id at each odometry stamp (the child must be the
-URDF's root link); and, with cube_frame set, odom -> cube: the aspect matcher's latest cube
-pose, seen in the base frame at its image stamp and placed in odom with the odometry of that
-stamp, then held there (a cube sits still until it is seen again). /tf and /tf_static are
+URDF's root link); and, with cube_frame set, odom -> cube at each odometry stamp: the
+aspect matcher's latest cube pose, seen in the base frame at its image stamp and placed in
+odom with the odometry of that stamp, then held there (a cube sits still until it is seen
+again). /tf and /tf_static are
 absolute, as tf2_ros has them. Science in abp_description.robot_state; this module only
 converts messages and parameters.
 """
@@ -156,8 +157,8 @@ class RobotStateNode(ManagedNode):
             raise Rejected('no_description', 'joint state before any robot_description')
         input_checks.joint_state(msg)
         self._clock_check()
-        t = stamp_ns(msg.header.stamp)
-        if not (self.values['ignore_timestamp'] or self._throttle.due(msg.name, t)):
+        stamp = stamp_ns(msg.header.stamp)
+        if not (self.values['ignore_timestamp'] or self._throttle.due(msg.name, stamp)):
             return
         with self.health.timed():
             transforms = self.tree.moving_transforms(dict(zip(msg.name, msg.position)))
@@ -167,7 +168,7 @@ class RobotStateNode(ManagedNode):
             self._tf_pub.publish(TFMessage(transforms=[
                 transform_msg(e.parent, e.child, t, q, msg.header.stamp, self._edge_msg(e))
                 for e, t, q in transforms]))
-        self._throttle.published(msg.name, t)
+        self._throttle.published(msg.name, stamp)
 
     def _on_odometry(self, msg: Odometry):
         input_checks.odometry(msg)
@@ -215,8 +216,10 @@ class RobotStateNode(ManagedNode):
                                               f'(kept: the last {self.values["odom_history"]:g}'
                                               ' s)')
             cube = odom_to_base @ cube
+        # Published from the next odometry stamp on, not at the (older) image stamp: the
+        # held estimate was already sent at later stamps, and the edge's samples must not
+        # go back and forth between the old and the new estimate.
         self._cube = translation_quaternion(cube)
-        self._tf_pub.publish(TFMessage(transforms=[self._cube_msg(msg.header.stamp)]))
 
     # -- output ---------------------------------------------------------------------------
     def _edge_msg(self, edge):

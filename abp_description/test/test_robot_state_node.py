@@ -296,31 +296,36 @@ def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
     p.x, p.y, p.z = cube_in_base[:3, 3]
     o.x, o.y, o.z, o.w = Rotation.from_matrix(cube_in_base[:3, :3]).as_quat()
     observation.hypotheses = [hypothesis]
-    # The odometry is taken best effort: the observation is sent again until the cube
-    # is placed (a lost odometry message makes the node refuse it, then it is resent).
+    # The cube goes out with the next odometry. Odometry is taken best effort: the
+    # observation is sent again until the cube is placed (a lost odometry message makes
+    # the node refuse it; then the odometry is sent again too).
+    t2 = T0_NS + 2 * STEP_NS
     for _ in range(10):
         observation_pub.publish(observation)
-        if spin(executor, lambda: buffer.has('cube', t_ns), 2):
+        odom_pub.publish(odometry_msg(2))
+        if spin(executor, lambda: buffer.has('cube', t2), 2):
             break
         for k in (0, 1):
             odom_pub.publish(odometry_msg(k))
-    assert buffer.has('cube', t_ns), 'no odom -> cube on /tf'
+    assert buffer.has('cube', t2), 'no odom -> cube on /tf'
     odom_a, odom_b = base_to_world(base_pose(0)), base_to_world(base_pose(1))
     rotation = Slerp([0, 1], Rotation.from_matrix([odom_a[:3, :3], odom_b[:3, :3]]))
     base = np.eye(4)
     base[:3, :3] = rotation(0.5).as_matrix()
     base[:3, 3] = 0.5 * (odom_a[:3, 3] + odom_b[:3, 3])
-    parent, cube = buffer.edge_at('cube', t_ns)
+    parent, cube = buffer.edge_at('cube', t2)
     assert parent == 'odom'
     p_err, a_err = pose_errors(cube, base @ cube_in_base)
     assert p_err <= 1e-6 and a_err <= 1e-4
     # Held in odom: sent again at each later odometry stamp.
-    t2 = T0_NS + 2 * STEP_NS
+    t4 = T0_NS + 4 * STEP_NS
     for _ in range(5):
-        odom_pub.publish(odometry_msg(2))
-        if spin(executor, lambda: buffer.has('cube', t2), 3):
+        odom_pub.publish(odometry_msg(4))
+        if spin(executor, lambda: buffer.has('cube', t4), 3):
             break
-    assert buffer.has('cube', t2), 'cube not held at a later odometry stamp'
+    assert buffer.has('cube', t4), 'cube not held at a later odometry stamp'
+    p_err, a_err = pose_errors(buffer.edge_at('cube', t4)[1], base @ cube_in_base)
+    assert p_err <= 1e-6 and a_err <= 1e-4
     assert 'base_link' not in buffer.edges, 'odom -> base_link published with it off'
 
     # Bad inputs are refused and counted in /diagnostics; the node goes on.

@@ -1,9 +1,10 @@
-"""The crash test (issue 14): each of the six nodes killed with SIGKILL mid-episode, in
-turn, on one running graph (`python -m abp_bench.soak --episodes 0 --kill ...`, rules
-world). Each time the episode must end (correct, or aborted / lost with a reason), the
-node must be back (a new process, active again under the lifecycle manager) and the next
-goal must succeed with the right object; no process of the graph may be left afterwards. The
-driver inherits this session's isolated ROS_DOMAIN_ID from the root conftest."""
+"""The crash test (issue 14): each of the graph's nodes (abp_bench.soak.GRAPH_NODES)
+killed with SIGKILL mid-episode, in turn, on one running graph (`python -m abp_bench.soak
+--episodes 0 --kill ...`, rules world). Each time the episode must end (correct, or
+aborted / lost with a reason), the node must be back (a new process, active again under
+the lifecycle manager) and the next goal must succeed with the right object; no process
+of the graph may be left afterwards. The driver inherits this session's isolated
+ROS_DOMAIN_ID from the root conftest."""
 
 import json
 import re
@@ -14,7 +15,7 @@ import pytest
 from abp_bench.soak import GRAPH_NODES
 from tests.helpers.graph import node_log_tails, run_to_end
 
-# Idle, the whole test takes about 3 minutes (12 episodes of 10-20 s, each node back
+# Idle, the whole test takes about 3 minutes (14 episodes of 10-20 s, each node back
 # within seconds). The deadlines leave room for a loaded machine, and stop the driver
 # (which stops its graph) with a trace well before pytest-timeout would.
 EPISODE_TIMEOUT_S = 240

@@ -202,7 +202,7 @@ def test_tf_alone_recovers_the_detector_camera_pose(ros_processes, nodes, spin):
     assert [i.qos_profile.durability for i in infos] == [QoSDurabilityPolicy.TRANSIENT_LOCAL]
 
     buffer, counts, tf_sub = late_tf_listener(make, executor)
-    assert spin(executor, lambda: counts['static'] == 1, 20), 'late joiner got no /tf_static'
+    assert spin(executor, lambda: counts['static'] >= 1, 20), 'late joiner got no /tf_static'
     assert {c for c, (_, s) in buffer.edges.items() if s[0][0] is None} == \
         {'camera_link', 'camera_optical_frame', 'left_hand_link', 'right_hand_link'}
 

@@ -54,6 +54,7 @@ MANAGER = 'lifecycle_manager'
 # Node name -> the class the executable runs (the name each class gives its node).
 MANAGED_CLASSES = {
     'sim_bridge': 'abp_sim_bridge.sim_bridge_node:SimBridgeNode',
+    'robot_state': 'abp_description.robot_state_node:RobotStateNode',
     'artag_detector': 'abp_perception.artag_detector_node:ArtagDetectorNode',
     'aspect_matcher': 'abp_perception.aspect_matcher_node:AspectMatcherNode',
     'belief': 'abp_belief.belief_node:BeliefNode',
@@ -77,6 +78,7 @@ def node_specs():
     from abp_bringup.lifecycle_manager import MANAGER_SPECS
     from abp_common.health_stats import HEALTH_SPECS
     from abp_common.param_spec import ParamSpec
+    from abp_description.robot_state_config import ROBOT_STATE_SPECS
     from abp_perception.node_parameters import DETECTOR_SPECS, MATCHER_SPECS
     from abp_planner.planner_config import PLANNER_SPECS
     from abp_sim_bridge import config as sim_config
@@ -87,6 +89,7 @@ def node_specs():
     autostart = ParamSpec('autostart', BOOL, True, 'ManagedNode')
     managed = {
         'sim_bridge': sim_config.PARAMETERS,
+        'robot_state': ROBOT_STATE_SPECS,
         'artag_detector': DETECTOR_SPECS,
         'aspect_matcher': MODEL_SET_SPECS + MATCHER_SPECS,
         'belief': MODEL_SET_SPECS + BELIEF_SPECS,

@@ -178,6 +178,10 @@ class PoseHistory:
     def latest_stamp(self):
         return self._stamps[-1] if self._stamps else None
 
+    def span(self):
+        """(oldest, newest) stamp kept, or None."""
+        return (self._stamps[0], self._stamps[-1]) if self._stamps else None
+
     def at(self, stamp_ns):
         """The 4x4 pose at `stamp_ns`, or None when it is outside the history."""
         stamps = self._stamps

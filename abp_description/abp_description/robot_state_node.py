@@ -210,11 +210,14 @@ class RobotStateNode(ManagedNode):
             if frame != base:
                 raise Rejected('frame', f'cube estimate in {frame!r}: expected the base frame '
                                         f'{base!r} or the odometry frame {self._odom_frame!r}')
-            odom_to_base = self._odometry.at(stamp_ns(msg.header.stamp))
+            seen = stamp_ns(msg.header.stamp)
+            odom_to_base = self._odometry.at(seen)
             if odom_to_base is None:
-                raise Rejected('no_odometry', "no odometry at the cube estimate's stamp "
-                                              f'(kept: the last {self.values["odom_history"]:g}'
-                                              ' s)')
+                kept = self._odometry.span()
+                kept = ('none' if kept is None else
+                        f'{kept[0] * 1e-9:.3f} to {kept[1] * 1e-9:.3f} s')
+                raise Rejected('no_odometry', f"no odometry at the cube estimate's stamp "
+                                              f'{seen * 1e-9:.3f} s (odometry kept: {kept})')
             cube = odom_to_base @ cube
         # Published from the next odometry stamp on, not at the (older) image stamp: the
         # held estimate was already sent at later stamps, and the edge's samples must not

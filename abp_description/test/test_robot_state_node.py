@@ -10,9 +10,14 @@ camera_optical_frame at stamps between two joint states; the camera pose the det
 uses is abp_description's forward kinematics of the joint state at the image stamp
 (linear in the joint values between two joint-state messages). Required: within 1 mm and
 0.1 degree. odom -> base_link is checked the same way against the odometry.
+
+The node runs under a namespace of its own with /tf and /tf_static remapped into it, as
+robots sharing a network do: a graph of another test session that happens to share the
+DDS domain publishes /odom and /joint_states too, and must not reach this one.
 """
 
 import os
+import uuid
 
 import numpy as np
 import pytest
@@ -46,9 +51,20 @@ TF_LISTENER = QoSProfile(depth=100)
 TF_STATIC_LISTENER = QoSProfile(depth=100, durability=QoSDurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def executable():
+# The node runs under a namespace of this test, with /tf and /tf_static remapped into it
+# (the multi-robot way): another graph on the same DDS domain cannot reach it.
+NAMESPACE = f'tf_test_{uuid.uuid4().hex[:8]}'
+
+
+def command(*args):
     prefix = ament_index.get_package_prefix('abp_description')
-    return os.path.join(prefix, 'lib', 'abp_description', 'robot_state')
+    return [os.path.join(prefix, 'lib', 'abp_description', 'robot_state'), '--ros-args',
+            '-r', f'__ns:=/{NAMESPACE}', '-r', f'/tf:=/{NAMESPACE}/tf',
+            '-r', f'/tf_static:=/{NAMESPACE}/tf_static', *args]
+
+
+def topic(name):
+    return f'/{NAMESPACE}/{name}'
 
 
 def stamp(t_ns):
@@ -176,29 +192,30 @@ def late_tf_listener(make, executor):
             buffer.add(msg, static)
             counts['static' if static else 'tf'] += 1
         return take
-    tf_sub = listener.create_subscription(TFMessage, '/tf', on(False), TF_LISTENER)
-    listener.create_subscription(TFMessage, '/tf_static', on(True), TF_STATIC_LISTENER)
+    tf_sub = listener.create_subscription(TFMessage, topic('tf'), on(False), TF_LISTENER)
+    listener.create_subscription(TFMessage, topic('tf_static'), on(True), TF_STATIC_LISTENER)
     return buffer, counts, tf_sub
 
 
 def test_tf_alone_recovers_the_detector_camera_pose(ros_processes, nodes, spin):
     make, executor = nodes
-    proc = ros_processes.start([executable()])
+    proc = ros_processes.start(command())
     kin = RobotKinematics()
     sender = make('joint_state_sender')
     executor.add_node(sender)
     # The node publishes /tf_static when it activates: seen here first, then by a node
     # created afterwards, which only transient local durability can serve.
     first_static = []
-    sender.create_subscription(TFMessage, '/tf_static', first_static.append,
+    sender.create_subscription(TFMessage, topic('tf_static'), first_static.append,
                                TF_STATIC_LISTENER)
     description = []
-    sender.create_subscription(String, 'robot_description', description.append, LATCHED)
+    sender.create_subscription(String, topic('robot_description'), description.append,
+                               LATCHED)
     assert spin(executor, lambda: first_static and description, 30), \
         'no /tf_static or robot_description from robot_state'
     with open(urdf_path()) as stream:
         assert description[-1].data == stream.read()
-    infos = sender.get_publishers_info_by_topic('/tf_static')
+    infos = sender.get_publishers_info_by_topic(topic('tf_static'))
     assert [i.qos_profile.durability for i in infos] == [QoSDurabilityPolicy.TRANSIENT_LOCAL]
 
     buffer, counts, tf_sub = late_tf_listener(make, executor)
@@ -206,8 +223,8 @@ def test_tf_alone_recovers_the_detector_camera_pose(ros_processes, nodes, spin):
     assert {c for c, (_, s) in buffer.edges.items() if s[0][0] is None} == \
         {'camera_link', 'camera_optical_frame', 'left_hand_link', 'right_hand_link'}
 
-    joints_pub = sender.create_publisher(JointState, 'joint_states', RELIABLE)
-    odom_pub = sender.create_publisher(Odometry, 'odom', RELIABLE)
+    joints_pub = sender.create_publisher(JointState, topic('joint_states'), RELIABLE)
+    odom_pub = sender.create_publisher(Odometry, topic('odom'), RELIABLE)
     assert spin(executor, lambda: joints_pub.get_subscription_count() > 0
                 and odom_pub.get_subscription_count() > 0
                 and tf_sub.get_publisher_count() > 0, 20), 'robot_state topics not matched'
@@ -265,11 +282,11 @@ def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
     base_link at a stamp between two odometry messages, is published as odom -> cube;
     malformed inputs are counted in /diagnostics, not published."""
     make, executor = nodes
-    proc = ros_processes.start([executable(), '--ros-args', '-p', 'urdf_source:=topic',
-                                '-p', 'enable_odom_tf:=false'])
+    proc = ros_processes.start(command('-p', 'urdf_source:=topic',
+                                       '-p', 'enable_odom_tf:=false'))
     sender = make('description_sender')
     executor.add_node(sender)
-    description_pub = sender.create_publisher(String, 'robot_description', LATCHED)
+    description_pub = sender.create_publisher(String, topic('robot_description'), LATCHED)
     with open(urdf_path()) as stream:
         description_pub.publish(String(data=stream.read()))
     buffer, counts, tf_sub = late_tf_listener(make, executor)
@@ -277,8 +294,8 @@ def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
         'no /tf_static from a robot_description given on the topic'
     assert 'camera_optical_frame' in buffer.edges
 
-    odom_pub = sender.create_publisher(Odometry, 'odom', RELIABLE)
-    observation_pub = sender.create_publisher(AspectObservation, 'abp/aspect_observation',
+    odom_pub = sender.create_publisher(Odometry, topic('odom'), RELIABLE)
+    observation_pub = sender.create_publisher(AspectObservation, topic('abp/aspect_observation'),
                                               RELIABLE)
     assert spin(executor, lambda: odom_pub.get_subscription_count() > 0
                 and observation_pub.get_subscription_count() > 0
@@ -331,8 +348,8 @@ def test_urdf_from_topic_and_the_cube_frame(ros_processes, nodes, spin):
     # Bad inputs are refused and counted in /diagnostics; the node goes on.
     statuses = []
     sender.create_subscription(DiagnosticArray, '/diagnostics', lambda m: statuses.extend(
-        s for s in m.status if s.name.endswith('robot_state: health')), 10)
-    joints_pub = sender.create_publisher(JointState, 'joint_states', RELIABLE)
+        s for s in m.status if s.name == f'{NAMESPACE}/robot_state: health'), 10)
+    joints_pub = sender.create_publisher(JointState, topic('joint_states'), RELIABLE)
     assert spin(executor, lambda: joints_pub.get_subscription_count() > 0, 20)
     wrong_child = odometry_msg(3, child='base_footprint')
     nan_joint = JointState(name=['head_pan_joint'], position=[float('nan')])

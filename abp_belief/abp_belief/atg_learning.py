@@ -61,47 +61,36 @@ from abp_description.frames import axis_angle_deg
 from . import cube
 from .cube import (
     ACTIONS,
-    FACE_NORMALS,
     NUM_MASS_VARIANTS,
-    NUM_YAWS,
     ORBIT_STEPS,
-    R_UP,
     STATE_ROTATIONS,
     STATES_PER_MODEL,
 )
 from .modelset import ModelSet, TransitionParams, build_outcome_tables
+from .transition_tables import (
+    DEFAULT_NEIGHBOURHOOD,
+    NEIGHBOURHOODS,
+    LearningError,
+    axis_rotation,
+    dense_table,
+    neighbourhood,
+    sparse_tables,
+    states_of_rotations,
+)
 
 PRIORS = ('table', 'uniform')
-NEIGHBOURHOODS = ('none', 'near', 'wide')
 DEFAULT_ALPHA = 2.0
 DEFAULT_EPSILON = 0.1
-DEFAULT_NEIGHBOURHOOD = 'near'
 TV_HIGHLIGHT = 0.1
 _NA, _NM, _NS = len(ACTIONS), NUM_MASS_VARIANTS, STATES_PER_MODEL
 
 
-class LearningError(ValueError):
-    """Experience that cannot be learned from (unreadable, out of range, inconsistent)."""
-
-
 # -- state geometry ---------------------------------------------------------------------
-def _states_of_rotations(rot: np.ndarray) -> np.ndarray:
-    """State index of each (..., 3, 3) rotation, -1 where it is not one of the 48."""
-    up_normal = rot[..., 2, :]                                   # body vector mapped to +z
-    hit = np.abs(up_normal[..., None, :] - FACE_NORMALS).max(axis=-1) < 1e-6
-    up = np.where(hit.any(axis=-1), hit.argmax(axis=-1), -1)
-    rz = rot @ np.swapaxes(R_UP[np.maximum(up, 0)], -1, -2)      # Rz(yaw) if a state
-    yaw_f = np.degrees(np.arctan2(rz[..., 1, 0], rz[..., 0, 0])) / 45.0
-    yaw = np.rint(yaw_f).astype(np.int64) % NUM_YAWS
-    ok = (up >= 0) & (np.abs(yaw_f - np.rint(yaw_f)) < 1e-6) & (np.abs(rz[..., 2, 2] - 1) < 1e-6)
-    return np.where(ok, NUM_YAWS * up + yaw, -1)
-
-
 def _map_table() -> np.ndarray:
     """MAP[s, s2, t]: the state t goes to under the motion Q = R(s2) R(s)^T (-1: no state)."""
     q = STATE_ROTATIONS[None, :] @ np.swapaxes(STATE_ROTATIONS, 1, 2)[:, None]   # (48, 48)
     moved = q[:, :, None] @ STATE_ROTATIONS[None, None]                          # (48,48,48)
-    return _states_of_rotations(moved).astype(np.int16)
+    return states_of_rotations(moved).astype(np.int16)
 
 
 MAP = _map_table()
@@ -293,15 +282,6 @@ def pooled_counts(experience: Experience, pool: bool = True) -> np.ndarray:
     return counts
 
 
-def dense_table(outcome_states, outcome_probs) -> np.ndarray:
-    """(8, 7, 48, 48) p(next | action, mass, state) from the sparse (.., K) tables."""
-    states = np.asarray(outcome_states).astype(np.int64)
-    dense = np.zeros(states.shape[:3] + (_NS,))
-    a, m, s, _ = np.indices(states.shape)
-    np.add.at(dense, (a, m, s, states), np.asarray(outcome_probs, dtype=np.float64))
-    return dense
-
-
 def hand_table(params: TransitionParams | None = None) -> np.ndarray:
     """The hand-written table of docs/MODEL.md, dense (8, 7, 48, 48) (a fresh copy)."""
     return _hand_table(params or TransitionParams()).copy()
@@ -310,52 +290,6 @@ def hand_table(params: TransitionParams | None = None) -> np.ndarray:
 @functools.lru_cache(maxsize=4)
 def _hand_table(params: TransitionParams) -> np.ndarray:
     return dense_table(*build_outcome_tables(params))
-
-
-def _neighbourhood_motions(kind: str) -> list[tuple[int, np.ndarray]]:
-    """(yaw steps, roll axis index or -1, roll degrees) combos of a neighbourhood."""
-    if kind == 'none':
-        return []
-    rolls = [(None, 0.0)] + [(axis, deg) for axis in (0, 1) for deg in (90.0, -90.0)]
-    yaws = (0, 1, -1)
-    if kind == 'near':
-        return [(k, None, 0.0) for k in yaws] + [(0, ax, deg) for ax, deg in rolls[1:]]
-    return [(k, ax, deg) for k in yaws for ax, deg in rolls + [(0, 180.0), (1, 180.0)]]
-
-
-def neighbourhood(kind: str = DEFAULT_NEIGHBOURHOOD) -> np.ndarray:
-    """(48, 48) bool: the manual-action neighbourhood of each start state (module doc).
-
-    Rolls are about the cube's horizontal body axes (the two body-face normals lying in the
-    horizontal plane, whatever the yaw), so the result is always one of the 48 states."""
-    if kind not in NEIGHBOURHOODS:
-        raise LearningError(f"neighbourhood must be one of {', '.join(NEIGHBOURHOODS)}")
-    return _neighbourhood(kind).copy()
-
-
-@functools.lru_cache(maxsize=None)
-def _neighbourhood(kind: str) -> np.ndarray:
-    out = np.zeros((_NS, _NS), dtype=bool)
-    for s in range(_NS):
-        rot = STATE_ROTATIONS[s]
-        horizontal = [rot @ n for n in FACE_NORMALS if abs((rot @ n)[2]) < 1e-6][::2]
-        for yaw_steps, axis, deg in _neighbourhood_motions(kind):
-            q = np.eye(3)
-            if axis is not None:
-                q = _axis_rotation(horizontal[axis], deg)
-            q = _axis_rotation(np.array([0.0, 0.0, 1.0]), 45.0 * yaw_steps) @ q
-            nxt = int(_states_of_rotations(q @ rot))
-            if nxt >= 0:
-                out[s, nxt] = True
-    return out
-
-
-def _axis_rotation(axis, deg) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    t = np.radians(deg)
-    r = np.eye(3) + np.sin(t) * k + (1 - np.cos(t)) * (k @ k)
-    return np.round(r, 12)
 
 
 def prior_mean(prior: str = 'table', epsilon: float = DEFAULT_EPSILON,
@@ -397,15 +331,7 @@ class LearnedTables:
         """Sparse (outcome_states int16, outcome_probs, outcome_counts), each (8, 7, 48, K):
         per cell its successors with p > min_prob (renormalised), most likely first; K the
         largest support; padding repeats the start state with probability and count 0."""
-        probs = np.where(self.probs > min_prob, self.probs, 0.0)
-        probs = probs / probs.sum(axis=3, keepdims=True)
-        k = max(1, int((probs > 0).sum(axis=3).max()))
-        order = np.argsort(-probs, axis=3, kind='stable')[..., :k]
-        p = np.take_along_axis(probs, order, axis=3)
-        c = np.take_along_axis(self.counts, order, axis=3)
-        start = np.arange(_NS)[None, None, :, None]
-        states = np.where(p > 0, order, start).astype(np.int16)
-        return states, p, np.where(p > 0, c, 0.0)
+        return sparse_tables(self.probs, self.counts, min_prob)
 
 
 def with_contact_faults(probs: np.ndarray, fault_rates: dict) -> np.ndarray:
@@ -503,7 +429,7 @@ def motion_name(q) -> str:
     """'none', 'Rz+45', 'Ry-90', 'Rx180', 'R(+x+y)+90 Rz-45', ... (a roll, then a yaw)."""
     q = np.asarray(q, dtype=np.float64)
     for k in (0, 1, -1, 2, -2, 3, -3, 4):
-        rest = _axis_rotation(np.array([0.0, 0.0, 1.0]), -45.0 * k) @ q
+        rest = axis_rotation(np.array([0.0, 0.0, 1.0]), -45.0 * k) @ q
         name = _roll_name(rest)
         if name is not None:
             if k == 0:

@@ -18,6 +18,7 @@ from abp_description.frames import rot_z_deg
 from . import cube
 from .cube import ACTIONS, NUM_MASS_VARIANTS, STATES_PER_MODEL
 from .observation import ObservationModel, ObservationParams
+from .transition_tables import dense_table, neighbourhood, sparse_tables
 
 __all__ = ['TransitionParams', 'ObservationParams', 'ModelSet', 'PairGaussians',
            'build_outcome_tables', 'MAX_NODES']
@@ -125,21 +126,17 @@ def build_outcome_tables(params: TransitionParams | None = None):
 def _with_unmodelled_outcomes(states, probs, share: float):
     """The tables with `share` of every manual-action row spread evenly over the start
     state's neighbourhood (no change, +-45 deg yaw, the four quarter rolls about the
-    horizontal axes: `atg_learning.neighbourhood('near')`, the learner's too).
+    horizontal axes: `transition_tables.neighbourhood('near')`, the learner's too).
 
     Why: the MuJoCo survey sees 5-15 % of outcomes no rule names (a cube turned while
     handled, a roll over an edge); a table that makes them impossible stops confidently
     wrong when one happens. ORBIT rows are unchanged (their slip is modelled)."""
-    # Lazy: atg_learning imports this module.
-    from .atg_learning import LearnedTables, dense_table, neighbourhood
-
     dense = dense_table(states, probs)
     near = neighbourhood('near').astype(np.float64)
     near /= near.sum(axis=1, keepdims=True)
     manual = [ACTIONS.index(name) for name in cube.MANUAL_ACTIONS]
     dense[manual] = (1.0 - share) * dense[manual] + share * near
-    sparse_states, sparse_probs, _ = LearnedTables(dense, np.zeros_like(dense), {}) \
-        .outcome_tables()
+    sparse_states, sparse_probs, _ = sparse_tables(dense, np.zeros_like(dense))
     return sparse_states, sparse_probs
 
 

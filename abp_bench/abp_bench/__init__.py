@@ -6,7 +6,8 @@ needed here, not there. One module per benchmark, each a command-line tool
 
 - ``filter_benchmark`` (``bench_filter``): one Bayes-filter step (abp_belief).
 - ``planner_benchmark``: the planners against the paper's Tables II/IV and Fig. 3.
-- ``perception_benchmark``: tag detection and aspect matching on rendered scenes.
+- ``perception_benchmark``: tag detection and aspect matching on rendered scenes
+  (``realistic_suite``: under realistic conditions; ``perception_scenes``: what the two share).
 - ``skills_benchmark``: IK, Ruckig trajectories and skill plans (abp_skills).
 - ``render_benchmark``: the sim bridge's ARcube renderer, time per frame and pose errors.
 - ``sim_bridge_benchmark``: the sim bridge's render and tick times and its publish rates.

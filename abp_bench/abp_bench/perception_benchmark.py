@@ -35,6 +35,9 @@ import numpy as np
 from abp_perception.detector import TagDetector
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
+# Shared with realistic_suite (perception_scenes), so that it need not import this module.
+from .perception_scenes import random_scene, rotation_deg, update_doc
+
 DISTANCES = (0.5, 1.0, 1.5, 2.0, 2.5)
 NOISE_LEVELS = {'clean': (0.0, 0.0), 'default': (0.6, 2.0), 'noisy': (1.0, 5.0),
                 'very noisy': (1.5, 8.0)}
@@ -51,18 +54,6 @@ def _effects(level):
     from abp_sim_bridge.flat_renderer import ImageEffects
     blur, noise = NOISE_LEVELS[level]
     return ImageEffects(blur_sigma=blur, noise_std=noise)
-
-
-def random_scene(gen, models, rng, distance, n_distractors=2, effects=None):
-    model = int(rng.integers(models.num_models))
-    state = int(rng.integers(48))
-    elevation = float(rng.uniform(25.0, 45.0))
-    distractors = gen.random_distractors(n_distractors, models.n_tags, distance, elevation,
-                                         in_range=1)
-    return gen.render(models.faces[model], state, distance=distance, elevation_deg=elevation,
-                      yaw_error_deg=float(rng.uniform(-8.0, 8.0)),
-                      look_offset=rng.uniform(-0.4, 0.4, size=2), distractors=distractors,
-                      effects=effects)
 
 
 def score_detections(scene, detections):
@@ -92,11 +83,6 @@ def score_detections(scene, detections):
             exp70 += 1
             found70 += k in used
     return exp60, found60, exp70, found70, len(detections) - wrong, wrong, centre_err
-
-
-def rotation_deg(a, b):
-    """Angle (deg) of the rotation between two rotation matrices."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(a.T @ b) - 1.0) / 2.0, -1.0, 1.0))))
 
 
 def cube_tag_hits(scene, detections):
@@ -323,21 +309,6 @@ def goals_table(det_rows, match_rows, match_range):
         row('matching time vs the 1470-model set (median, CPU)', '≤ 5 ms',
             f'{match_ms:.3f} ms', match_ms <= GOALS['match_ms']),
     ])
-
-
-def update_doc(path, section, heading='Perception'):
-    """Add or replace the '## <heading>' section of a Markdown file (others kept)."""
-    import re
-    text = open(path).read() if os.path.exists(path) else '# Benchmarks\n'
-    pattern = re.compile(r'^## ' + re.escape(heading) + r'[ \t]*(\(.*\))?[ \t]*$.*?(?=^## |\Z)',
-                         re.S | re.M)
-    body = section.rstrip() + '\n\n'
-    if pattern.search(text):
-        text = pattern.sub(lambda _: body, text, count=1)
-    else:
-        text = text.rstrip() + '\n\n' + body
-    with open(path, 'w') as stream:
-        stream.write(text.rstrip() + '\n')
 
 
 def main(argv=None):

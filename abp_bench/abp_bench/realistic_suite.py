@@ -57,7 +57,7 @@ from abp_perception.detector import (
 )
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
-from .perception_benchmark import random_scene, rotation_deg
+from .perception_scenes import random_scene, rotation_deg
 
 CONDITIONS = ('plain', 'textured', 'clutter', 'gradient', 'motion blur', 'jpeg',
               'occlusion', 'all')
@@ -688,7 +688,7 @@ def section(rows, frames, command, per_condition):
 def main(args, models, gen, argv):
     import sys
 
-    from .perception_benchmark import update_doc
+    from .perception_scenes import update_doc
     rng = np.random.default_rng(args.seed)
     rows, frames = run(gen, models, rng, args.realistic_frames, seed=args.seed)
     command = ('install/abp_bench/lib/abp_bench/perception_benchmark '

@@ -2,8 +2,14 @@
 
 Science in plain modules (no rclpy):
 
-- ``detector``: image conversion (no cv_bridge), ArUco detection, IPPE_SQUARE poses,
-  covariances, confidences, transforms to the base frame;
+- ``detector``: ``TagDetector``, ArUco detection and the second pass over rejected
+  contours, the face search and rigid-cube fit wired together;
+- ``image_encodings``: Image and CompressedImage payloads to grey (no cv_bridge), the
+  image checks;
+- ``tag_pose``: IPPE_SQUARE poses, covariances, confidences, the detection types;
+- ``region_search``: where to search next frame (``RegionSearch``) and tracking;
+- ``face_search``, ``blur_decode``, ``rigid_cube``: tags on a found tag's cube faces,
+  blurred-code decoding, one rigid pose per cube;
 - ``corners``: sub-pixel edge-fit corners and bit decoding of a quad;
 - ``matcher``: the aspect-based generalised Hough transform (Alg. 2);
 - ``geometry``: rotation -> quaternion for the messages;

@@ -63,17 +63,19 @@ from .camera_model import (
     joints_moving_frame,
     rectified_to_camera,
 )
-from .detector import (
+from .detector import TagDetector
+from .image_encodings import (
     ImageDecodeError,
+    ImageEncodingError,
+    ImageLayoutError,
     ImageSizeError,
-    RegionSearch,
-    TagDetector,
     check_image_size,
     compressed_msg_to_gray,
+    image_msg_to_gray,
 )
-from .image_encodings import ImageEncodingError, ImageLayoutError, image_msg_to_gray
 from .joint_state_buffer import JointStateBuffer, OutsideBuffer
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
+from .region_search import RegionSearch
 
 THROTTLE_S = 5.0
 # distortion model -> the numbers of coefficients it takes ('' = none given)

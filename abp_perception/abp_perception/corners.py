@@ -31,7 +31,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'code_table', 'square_homographies']
+__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'inside_any_quad', 'code_table',
+           'square_homographies']
 
 # Edge-profile sampling: fractions of each edge, samples across it (wide first pass to
 # recover contour corners that are several pixels off, then a narrow pass).
@@ -54,6 +55,17 @@ def quad_areas(quads) -> np.ndarray:
     q = np.asarray(quads, dtype=np.float64)
     nxt = q[:, _NEXT]
     return 0.5 * np.sum(q[..., 0] * nxt[..., 1] - nxt[..., 0] * q[..., 1], axis=1)
+
+
+def inside_any_quad(points, quads) -> np.ndarray:
+    """Whether each point (P, 2) lies inside any convex quad (Q, 4, 2) (either winding)."""
+    a = quads[None, :, :, :]                                   # (1, Q, 4, 2)
+    b = quads[None, :, [1, 2, 3, 0], :]
+    p = points[:, None, None, :]                               # (P, 1, 1, 2)
+    cross = (b[..., 0] - a[..., 0]) * (p[..., 1] - a[..., 1]) \
+        - (b[..., 1] - a[..., 1]) * (p[..., 0] - a[..., 0])    # (P, Q, 4)
+    inside = (cross >= 0).all(axis=2) | (cross <= 0).all(axis=2)
+    return inside.any(axis=1)
 
 
 def _edge_offsets(prof, s):

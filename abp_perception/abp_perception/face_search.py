@@ -8,11 +8,11 @@ contour of more than four vertices and the smeared bits merge with it (or with t
 face's tag across the thin cube edge). Most of those tags sit on a cube face next to a
 tag that was found (issue 16). So ``adjacent_face_boxes`` predicts, from each found
 tag's pose(s), where its cube's adjacent faces that face the camera and hold no found
-tag are: their image boxes and (``with_quads``) the projected marker quads, which the
-detector refines and decodes directly, with no contour search at all (a found tag's
-pose puts the next face's marker within a pixel or two; the edge fit of
+tag are: their image boxes and (``with_quads``) the projected marker quads, which
+``search_faces`` refines and decodes directly, with no contour search at all (a found
+tag's pose puts the next face's marker within a pixel or two; the edge fit of
 ``corners.refine_quads`` recovers that, and ``blur_decode`` reads markers too blurred
-for their bits).
+for their bits), for ``TagDetector.detect`` and ``track``.
 """
 
 from __future__ import annotations
@@ -20,9 +20,18 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from .corners import quad_areas
+from .blur_decode import MIN_DARKNESS, darkness, decode_blurred
+from .corners import decode_quads, inside_any_quad, quad_areas, refine_quads
+from .tag_pose import DroppedDetection
 
-__all__ = ['adjacent_face_boxes', 'copy_parameters']
+__all__ = ['adjacent_face_boxes', 'copy_parameters', 'search_faces', 'FACE_SEARCH_AMBIGUITY',
+           'FACE_SEARCH_ROUNDS']
+
+# Rounds of prediction (the second from the tags the first found: a cube's third face).
+FACE_SEARCH_ROUNDS = 2
+# Best / second IPPE reprojection error above which the face search also trusts a tag's
+# mirrored pose (below it, the mirrored pose only adds boxes on faces with no tag).
+FACE_SEARCH_AMBIGUITY = 0.6
 
 # The four faces next to a tag's face, in the tag frame (x right, y up, z out of the
 # face): outward normal and the in-plane axis of that face other than z.
@@ -99,3 +108,84 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
     inside = (hi - lo >= 1.0).all(axis=1) & np.isfinite(px).all(axis=(1, 2))
     boxes = np.concatenate([lo, hi, np.sqrt(area)[:, None]], axis=1)[inside]
     return (boxes, px[inside, 4:]) if with_quads else boxes
+
+
+def search_faces(gray, detections, pose_model, dictionary, cube_size, blur_decode=True):
+    """Detections on the cube faces (edge `cube_size`) next to found tags that should show
+    a tag and hold none found (``adjacent_face_boxes`` from both IPPE poses of each tag):
+    the predicted marker quads themselves, decoded (``_decode_predicted``) and given poses
+    by `pose_model` (``tag_pose.TagPoseModel``); then once more from the tags this found
+    (a cube's third face)."""
+    found, seeds = [], list(detections)
+    for _ in range(FACE_SEARCH_ROUNDS):
+        if not seeds:
+            break
+        boxes, quads = _face_boxes(gray, seeds, detections + found, pose_model, cube_size)
+        if not len(boxes):
+            break
+        seeds = _decode_predicted(gray, quads, detections + found, pose_model, dictionary,
+                                  blur_decode)
+        found += seeds
+    return found
+
+
+def _face_boxes(gray, seeds, detections, pose_model, cube_size):
+    # The mirrored IPPE pose too where it is nearly as good (it puts the faces elsewhere).
+    boxes, quads = adjacent_face_boxes(
+        np.concatenate([d.candidates if d.ambiguity > FACE_SEARCH_AMBIGUITY
+                        else d.candidates[:1] for d in seeds]),
+        np.array([d.pose[:3, 3] for d in detections]), pose_model.camera_matrix,
+        pose_model.dist_coeffs, cube_size, pose_model.marker_size, gray.shape, with_quads=True)
+    keep = boxes[:, 4] >= pose_model.min_side_px
+    return boxes[keep], quads[keep]
+
+
+def _decode_predicted(gray, quads, detections, pose_model, dictionary, blur_decode):
+    """Detections at predicted marker quads (K, 4, 2): those dark inside against their
+    quiet zone (``blur_decode.darkness``; no marker otherwise), one per place, refined
+    and decoded by bits (``decode_quads``) or else, refined or as predicted, by
+    correlation with blurred codes (``decode_blurred``)."""
+    # Screen order: clockwise, as ArUco orders markers.
+    quads = quads.copy()
+    flip = quad_areas(quads) < 0
+    quads[flip] = quads[flip][:, ::-1]
+    cells = int(dictionary.markerSize) + 2
+    dark = darkness(gray, quads, cells)
+    keep = np.flatnonzero(dark >= MIN_DARKNESS)
+    # One quad per place (the same face predicted from several tags or poses): the
+    # darkest against its quiet zone, i.e. the best aligned with the marker.
+    keep = keep[np.argsort(-dark[keep], kind='stable')]
+    centres = quads.mean(axis=1)
+    sides = np.sqrt(np.abs(quad_areas(quads)))
+    chosen = []
+    for k in keep:
+        if all(np.linalg.norm(centres[k] - centres[j]) > 0.3 * sides[j] for j in chosen):
+            chosen.append(k)
+    if not chosen:
+        return []
+    quads = quads[chosen]
+    refined, ok = refine_quads(gray, quads)
+    res = decode_quads(gray, refined, dictionary)
+    out = [(np.roll(refined[k], res[k][1], axis=0), res[k][0])
+           for k in range(len(quads)) if ok[k] and res[k] is not None]
+    left = [k for k in range(len(quads)) if not (ok[k] and res[k] is not None)]
+    if blur_decode and left:
+        tries = [refined[k] for k in left if ok[k]] + [quads[k] for k in left]
+        owner = [k for k in left if ok[k]] + left
+        done = set()
+        for k, quad, r in zip(owner, tries, decode_blurred(gray, np.array(tries),
+                                                           dictionary)):
+            if r is not None and k not in done:
+                done.add(k)
+                out.append((np.roll(quad, r[1], axis=0), r[0]))
+    known = np.array([d.corners for d in detections], dtype=np.float64)
+    dets = []
+    for quad, tag_id in out:
+        centre = quad.mean(axis=0)[None]
+        if inside_any_quad(centre, known)[0] or (
+                dets and inside_any_quad(centre, np.array([d.corners for d in dets]))[0]):
+            continue
+        det = pose_model.pose(tag_id, quad, 'face_search')
+        if not isinstance(det, DroppedDetection):
+            dets.append(det)
+    return dets

@@ -28,6 +28,16 @@ honoured for them.
 Anything else (depth images such as 16UC1 / 32FC1, 16-bit colour, planar YUV) raises
 `ImageEncodingError` naming the encodings accepted; a buffer whose size, step and length
 disagree raises `ImageLayoutError`.
+
+``sensor_msgs/CompressedImage`` payloads (JPEG or PNG, image_transport's ``compressed``
+format strings such as ``'rgb8; jpeg compressed bgr8'``) are decoded by
+``compressed_image_to_gray`` (``cv2.imdecode``); a corrupt payload raises
+``ImageDecodeError`` (an ``ImageEncodingError``).
+
+The detector's checks of what it is given: ``check_gray_image`` (a non-empty 2-D uint8
+image, ``ValueError`` saying why not) and ``check_image_size`` (``ImageSizeError`` for an
+image whose size is not the one the camera intrinsics are for: the scaled image of a 2x
+resized camera would put every tag at twice its distance).
 """
 
 import cv2
@@ -133,6 +143,135 @@ def image_msg_to_gray(msg) -> np.ndarray:
                          bool(msg.is_bigendian))
 
 
-__all__ = ['BAYER_ENCODINGS', 'EIGHT_BIT_ENCODINGS', 'ImageEncodingError', 'ImageLayoutError',
-           'SIXTEEN_BIT_ENCODINGS', 'SUPPORTED_ENCODINGS', 'YUV422_ENCODINGS',
-           'bytes_per_pixel', 'image_msg_to_gray', 'image_to_gray', 'significant_bits']
+class ImageDecodeError(ImageEncodingError):
+    """A compressed image payload that does not decode (corrupt, truncated, empty)."""
+
+
+class ImageSizeError(ValueError):
+    """The image's size is not the one the camera intrinsics are for."""
+
+
+def check_image_size(width, height, expected):
+    """Raise ImageSizeError unless (width, height) equals `expected` (None: anything)."""
+    if expected is None:
+        return
+    ew, eh = expected
+    if (int(width), int(height)) != (ew, eh):
+        raise ImageSizeError(
+            f'image is {int(width)}x{int(height)} px but the camera intrinsics (camera_info) '
+            f'are for {ew}x{eh} px: poses would be wrong (a scaled image scales every '
+            f'distance); resize the image or use the matching camera_info')
+
+
+def _parse_format(fmt):
+    """(original encoding or None, codec or None, transport encoding or None) of a
+    CompressedImage format string."""
+    fmt = (fmt or '').strip()
+    original, _, rest = fmt.rpartition(';') if ';' in fmt else ('', '', fmt)
+    tokens = rest.split()
+    lowered = [t.lower() for t in tokens]
+    if 'compresseddepth' in lowered:
+        raise ImageEncodingError(
+            f'compressed image format {fmt!r}: compressedDepth (depth images) is not '
+            'supported; expected JPEG or PNG of an 8-bit image')
+    codec = None
+    if lowered:
+        codec = {'jpeg': 'jpeg', 'jpg': 'jpeg', 'png': 'png'}.get(lowered[0])
+        if codec is None:
+            raise ImageEncodingError(
+                f'compressed image format {fmt!r}: unsupported codec {tokens[0]!r}; '
+                'expected jpeg or png')
+    transport = tokens[2] if len(tokens) >= 3 and lowered[1] == 'compressed' else None
+    return original.strip() or None, codec, transport
+
+
+def parse_compressed_format(fmt):
+    """``(original encoding, codec, transport encoding)`` of a sensor_msgs/CompressedImage
+    format string in image_transport's ``compressed`` convention: ``'<encoding>; jpeg
+    compressed <encoding>'``, ``'<encoding>; png compressed <encoding>'`` or the legacy
+    ``'jpeg'`` / ``'png'``; parts that are absent are None (an empty format: the codec is
+    read from the payload). Raises ImageEncodingError for other codecs, compressedDepth
+    and original encodings that are not 8-bit images (image_encodings.EIGHT_BIT_ENCODINGS)."""
+    original, codec, transport = _parse_format(fmt)
+    for enc in (original, transport):
+        if enc is not None and enc not in EIGHT_BIT_ENCODINGS:
+            raise ImageEncodingError(
+                f'compressed image format {fmt!r}: unsupported image encoding {enc!r}; '
+                f"supported: {', '.join(EIGHT_BIT_ENCODINGS)}")
+    return original, codec, transport
+
+
+_MAGIC = {'jpeg': b'\xff\xd8', 'png': b'\x89PNG'}
+
+
+def compressed_image_to_gray(fmt, data) -> np.ndarray:
+    """A (height, width) uint8 grey image from a CompressedImage's format and data.
+
+    JPEG and PNG, decoded with ``cv2.imdecode`` straight to grey, except when the payload
+    holds RGB-ordered channels (transport encoding rgb8 / rgba8), which are decoded in
+    colour and converted as RGB. Raises ImageEncodingError for an unsupported format and
+    ImageDecodeError for a payload that does not decode."""
+    _, codec, transport = parse_compressed_format(fmt)
+    try:
+        buf = np.frombuffer(memoryview(data), dtype=np.uint8)
+    except TypeError:
+        buf = np.asarray(data, dtype=np.uint8).reshape(-1)
+    if buf.size == 0:
+        raise ImageDecodeError(f'empty compressed image payload (format {fmt!r})')
+    if codec is not None and not buf[:len(_MAGIC[codec])].tobytes() == _MAGIC[codec]:
+        raise ImageDecodeError(
+            f'compressed image payload of {buf.size} bytes is not {codec.upper()} data '
+            f'(format {fmt!r})')
+    rgb_order = transport in ('rgb8', 'rgba8')
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_COLOR if rgb_order else cv2.IMREAD_GRAYSCALE)
+    except cv2.error as error:
+        raise ImageDecodeError(f'compressed image payload of {buf.size} bytes does not '
+                               f'decode (format {fmt!r}): {error.msg.strip()}') from None
+    if img is None or img.size == 0:
+        raise ImageDecodeError(f'compressed image payload of {buf.size} bytes is corrupt or '
+                               f'truncated (format {fmt!r})')
+    if rgb_order:
+        # IMREAD_COLOR returns the payload's channels as stored, read as BGR.
+        img = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    return img
+
+
+def compressed_msg_to_gray(msg) -> np.ndarray:
+    """``compressed_image_to_gray`` of anything with sensor_msgs/CompressedImage's fields."""
+    return compressed_image_to_gray(msg.format, msg.data)
+
+def check_gray_image(gray, image_size=None) -> np.ndarray:
+    """`gray` as a C-contiguous (height, width) uint8 array, or ValueError saying why
+    not: empty, not 2-D (colour: convert it first), not uint8, or not `image_size`
+    ((width, height) px; None: any size)."""
+    if not isinstance(gray, np.ndarray):
+        try:
+            gray = np.asarray(gray)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f'expected a 2-D uint8 grey image, got {type(gray).__name__}'
+                             f' ({error})') from None
+    if gray.ndim == 3 and gray.shape[2] == 1:
+        gray = gray[:, :, 0]
+    if gray.ndim == 3 and gray.shape[2] in (3, 4):
+        raise ValueError(
+            f'expected a 2-D uint8 grey image, got {gray.shape[2]} channels '
+            f'{gray.shape} {gray.dtype}: convert it first (image_to_gray, or '
+            f'cv2.cvtColor with COLOR_BGR2GRAY / COLOR_BGRA2GRAY)')
+    if gray.ndim != 2:
+        raise ValueError(f'expected a 2-D uint8 grey image, got a {gray.ndim}-D array '
+                         f'{gray.shape} {gray.dtype}')
+    if gray.size == 0:
+        raise ValueError(f'empty image ({gray.shape[1]}x{gray.shape[0]} px)')
+    if gray.dtype != np.uint8:
+        raise ValueError(f'expected a 2-D uint8 grey image, got dtype {gray.dtype} '
+                         f'{gray.shape}: scale to 0..255 and convert to uint8 first')
+    check_image_size(gray.shape[1], gray.shape[0], image_size)
+    return np.ascontiguousarray(gray)
+
+
+__all__ = ['BAYER_ENCODINGS', 'EIGHT_BIT_ENCODINGS', 'ImageDecodeError', 'ImageEncodingError',
+           'ImageLayoutError', 'ImageSizeError', 'SIXTEEN_BIT_ENCODINGS', 'SUPPORTED_ENCODINGS',
+           'YUV422_ENCODINGS', 'bytes_per_pixel', 'check_gray_image', 'check_image_size',
+           'compressed_image_to_gray', 'compressed_msg_to_gray', 'image_msg_to_gray',
+           'image_to_gray', 'parse_compressed_format', 'significant_bits']

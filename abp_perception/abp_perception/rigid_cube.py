@@ -36,7 +36,7 @@ with a covariance propagated from the cube fit; its own single-tag pose stays in
 Covariance of the cube pose: ``sigma^2 (J^T J)^-1`` with ``J`` the pinhole Jacobian of
 all the corners' image positions with respect to (translation, small rotation about the
 camera axes), ``sigma`` the detector's corner noise (``corner_sigma_px``, the small-tag
-term at the group's smallest tag and the fit's RMS error, as in ``detector``); a tag's
+term at the group's smallest tag and the fit's RMS error, as in ``tag_pose``); a tag's
 covariance is that of its centre and rotation, ``A C A^T`` with
 ``A = [[I, -[R c]x], [0, I]]``, ``c`` the tag centre in the cube frame.
 """
@@ -49,6 +49,8 @@ import cv2
 import numpy as np
 
 from abp_belief.cube import CUBE_ROTATIONS
+
+from .tag_pose import transform_covariance
 
 __all__ = ['CubePose', 'CUBE_GROUP', 'face_placements', 'fit_cubes', 'group_tags']
 
@@ -102,7 +104,6 @@ class CubePose:
         return self.pose[None] @ self.placements
 
     def transformed(self, transform, frame: str) -> "CubePose":
-        from .detector import transform_covariance
         transform = np.asarray(transform, dtype=np.float64)
         return CubePose(self.detections, transform @ self.pose,
                         transform_covariance(self.covariance, transform[:3, :3]),

@@ -1,0 +1,208 @@
+"""make_cubes round trip (issue 35): every page of the robot set, read back from its
+300 dpi PNG with OpenCV's ArUco detector, shows the six tags of its model, and the net
+folded along its fold lines is the model's cube with every tag turned as the sim's
+renderers draw it; the PDF is one page of the right size; the scale bar is 10 cm.
+
+In-process: make_cubes.main writes the files, the checks read only the files.
+"""
+
+import re
+import struct
+import zlib
+
+import cv2
+import numpy as np
+import pytest
+
+from abp_belief import population
+from abp_belief.cube import OPPOSITE_FACE
+from abp_bench import cube_net, make_cubes
+from abp_sim_bridge.flat_renderer import FACE_TAG_AXES
+
+CUBE_M, TAG_M = 0.05, 0.04        # the 10 cm default does not fit on one sheet (test below)
+DPI = 300
+PX_PER_MM = DPI / 25.4
+ROBOT = population.robot_set()
+
+
+@pytest.fixture(scope='module')
+def robot_pages(tmp_path_factory):
+    out = tmp_path_factory.mktemp('cubes')
+    assert make_cubes.main(['--model-set', 'robot', '--out', str(out), '--cube-size',
+                            str(CUBE_M), '--tag-size', str(TAG_M), '--charuco']) == 0
+    return out
+
+
+def detect(image):
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
+    corners, ids, _ = cv2.aruco.ArucoDetector(dictionary).detectMarkers(image)
+    return ([] if ids is None else ids.ravel().tolist()), corners
+
+
+def _snap(v):
+    """A paper direction (x right, y up) snapped to the nearest axis, as a 3-vector."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    axis = np.array([(1, 0), (0, 1), (-1, 0), (0, -1)])[np.argmax(
+        [v @ a for a in ((1, 0), (0, 1), (-1, 0), (0, -1))])]
+    assert np.degrees(np.arccos(np.clip(v @ axis, -1, 1))) < 2.0, v
+    return np.array([axis[0], axis[1], 0.0])
+
+
+def _quarter_fold(direction):
+    """Rotation folding a square lying beyond a hinge in paper `direction` away from the
+    reader (into -z): +90 deg about z x direction."""
+    axis = np.cross([0.0, 0.0, 1.0], direction)
+    rotation, _ = cv2.Rodrigues(axis * np.pi / 2)
+    return rotation
+
+
+def fold_net(ids, corners):
+    """{tag: (cell, R)} of the detected tags: grid cell from the tag centres and the
+    rotation of each square once the net is folded, the first square unmoved."""
+    cube_px = CUBE_M * 1000 * PX_PER_MM
+    centres = np.array([c.reshape(4, 2).mean(axis=0) for c in corners])
+    cells = np.round((centres - centres.min(axis=0)) / cube_px).astype(int)
+    assert np.abs((centres - centres.min(axis=0)) / cube_px - cells).max() < 0.02
+    cell_of = {tuple(cell): i for i, cell in enumerate(cells)}
+    frames = {0: np.eye(3)}
+    todo = [0]
+    while todo:
+        i = todo.pop()
+        for step in ((1, 0), (-1, 0), (0, 1), (0, -1)):          # image x right, y down
+            j = cell_of.get((cells[i][0] + step[0], cells[i][1] + step[1]))
+            if j is not None and j not in frames:
+                direction = np.array([step[0], -step[1], 0.0])  # on the paper, y up
+                frames[j] = frames[i] @ _quarter_fold(direction)
+                todo.append(j)
+    assert len(frames) == 6, 'the net falls apart'
+    return cells, frames
+
+
+def test_every_robot_model_page_detects_and_folds_into_its_cube(robot_pages):
+    assert len(ROBOT.names) == 30
+    for name, faces, mass in zip(ROBOT.names, ROBOT.faces, ROBOT.mass):
+        image = cv2.imread(str(robot_pages / f'{make_cubes.file_stem(name)}.png'),
+                           cv2.IMREAD_GRAYSCALE)
+        assert image is not None, name
+        assert abs(image.shape[1] - 210 * PX_PER_MM) < 1.5
+        assert abs(image.shape[0] - 297 * PX_PER_MM) < 1.5
+        ids, corners = detect(image)
+        faces = [int(t) for t in faces]
+        assert sorted(ids) == sorted(faces), f'{name}: detected {sorted(ids)}'
+        cells, frames = fold_net(ids, corners)
+        # Across every fold line: the two tags are on adjacent faces of the model's cube.
+        folds = 0
+        for i in range(6):
+            for j in range(i + 1, 6):
+                if np.abs(cells[i] - cells[j]).sum() == 1:
+                    fi, fj = faces.index(ids[i]), faces.index(ids[j])
+                    assert fj != OPPOSITE_FACE[fi], f'{name}: tags {ids[i]}, {ids[j]} fold ' \
+                        'together but are on opposite faces of the model'
+                    folds += 1
+        assert folds == 5
+        # The folded net is the model: one rotation takes every printed tag's right, up
+        # and outward normal onto its body face's tag axes (FACE_TAG_AXES, the renderers').
+        rotations = []
+        for i, tag in enumerate(ids):
+            tl, tr, _, bl = corners[i].reshape(4, 2)
+            right = _snap((tr - tl) * [1, -1])
+            up = _snap((tl - bl) * [1, -1])
+            folded = frames[i] @ np.column_stack([right, up, np.cross(right, up)])
+            rotations.append(FACE_TAG_AXES[faces.index(tag)] @ folded.T)
+        for q in rotations:
+            assert np.allclose(q, rotations[0], atol=1e-9), f'{name}: tags turned wrongly'
+        assert np.isclose(np.linalg.det(rotations[0]), 1.0)
+
+
+def _png_dpi(path):
+    data = path.read_bytes()
+    k = data.index(b'pHYs')
+    x, y, unit = struct.unpack('>IIB', data[k + 4:k + 13])
+    assert unit == 1
+    return x * 0.0254, y * 0.0254
+
+
+def test_scale_bar_and_files(robot_pages):
+    name = 'c0-1-2-4-5-3/m+y'
+    stem = robot_pages / make_cubes.file_stem(name)
+    assert _png_dpi(stem.with_suffix('.png')) == pytest.approx((DPI, DPI), abs=0.01)
+    image = cv2.imread(str(stem.with_suffix('.png')), cv2.IMREAD_GRAYSCALE)
+    page = cube_net.cube_page(name, *cube_net.parse_model_name(name), cube_mm=CUBE_M * 1000,
+                              tag_mm=TAG_M * 1000)
+    x0, y0 = page.scale_bar
+    row = int(round((page.size_mm[1] - (y0 + 0.75)) * PX_PER_MM))
+    dark = image[row] < 128
+    middle = int(round((x0 + 50) * PX_PER_MM))
+    left, right = middle, middle
+    while dark[left - 1]:
+        left -= 1
+    while dark[right + 1]:
+        right += 1
+    assert abs((right - left + 1) - 100 * PX_PER_MM) <= 1.5     # 1181 px = 10 cm at 300 dpi
+    # The weight mark (a grey disc, white W) sits in the heavy face's square, on the paper.
+    heavy = next(s for s in page.squares if s.face == page.heavy_face)
+    mx, my = page.weight_mark
+    assert heavy.origin[0] < mx < heavy.origin[0] + page.cube_mm
+    assert heavy.origin[1] < my < heavy.origin[1] + (page.cube_mm - page.tag_mm) / 2
+    disc = image[int(round((page.size_mm[1] - my) * PX_PER_MM)),
+                 int(round((mx - 0.25 * (page.cube_mm - page.tag_mm) / 2) * PX_PER_MM))]
+    assert 60 < disc < 200
+    assert any('tag 2' in line and 'W' in line for line in page.notes)   # +y carries tag 2
+    pdf = stem.with_suffix('.pdf').read_bytes()
+    _check_pdf(pdf, (210, 297))
+
+
+def _check_pdf(pdf: bytes, size_mm):
+    assert pdf.startswith(b'%PDF-') and pdf.rstrip().endswith(b'%%EOF')
+    assert len(re.findall(rb'/Type\s*/Page\b', pdf)) == 1
+    box = [float(v) for v in re.search(rb'/MediaBox\s*\[([^\]]*)\]', pdf).group(1).split()]
+    assert box[:2] == [0, 0]
+    assert box[2:] == pytest.approx([s / 25.4 * 72 for s in size_mm], abs=0.01)
+    # Every stream inflates (a truncated file would not).
+    for m in re.finditer(rb'/FlateDecode.*?stream\r?\n', pdf, re.S):
+        zlib.decompressobj().decompress(pdf[m.end():m.end() + 200])
+
+
+def test_letter_paper_and_the_charuco_board(robot_pages, tmp_path):
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(tmp_path), '--paper', 'letter',
+                            '--cube-size', str(CUBE_M), '--tag-size', str(TAG_M)]) == 0
+    _check_pdf((tmp_path / 'c0-4-1-2-3-6_u.pdf').read_bytes(), (215.9, 279.4))
+    image = cv2.imread(str(tmp_path / 'c0-4-1-2-3-6_u.png'), cv2.IMREAD_GRAYSCALE)
+    assert sorted(detect(image)[0]) == [0, 1, 2, 3, 4, 6]
+    # The board page: every ChArUco corner found on the printed board.
+    from abp_perception.charuco_calibration import BoardSpec
+    spec = BoardSpec()
+    board = cv2.imread(str(robot_pages / 'charuco_board.png'), cv2.IMREAD_GRAYSCALE)
+    corners, ids, _, _ = cv2.aruco.CharucoDetector(spec.board()).detectBoard(board)
+    assert ids is not None and len(ids) == (spec.squares_x - 1) * (spec.squares_y - 1)
+    _check_pdf((robot_pages / 'charuco_board.pdf').read_bytes(), (210, 297))
+
+
+def test_refusals_write_nothing(tmp_path, capsys):
+    out = tmp_path / 'none'
+    # The detector's default 10 cm cube: its net is 30 x 41 cm.
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(out)]) == 1
+    err = capsys.readouterr().err
+    assert 'A4 leaves' in err and 'largest cube that fits is' in err and 'cube_size' in err
+    assert not out.exists()
+    for bad in (['c0-4-1-2-3/u'], ['c0-4-1-2-3-6/m+w'], ['c0-4-1-2-3-3/u'], []):
+        assert make_cubes.main([*bad, '--out', str(out), '--cube-size', '0.05',
+                                '--tag-size', '0.04']) == 2
+        assert not out.exists()
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(out), '--cube-size', '0.05',
+                            '--tag-size', '0.05']) == 2
+    assert 'smaller than the cube face' in capsys.readouterr().err
+
+
+def test_fold_geometry_matches_the_belief_cube():
+    """The cross's squares, fold lines and tabs: 6 faces, 5 folds, 7 tabs on the 7 cut
+    edges, each tab going under a face adjacent to its own."""
+    squares = cube_net.cross_squares()
+    assert sorted(s.face for s in squares) == list(range(6))
+    assert len(cube_net.fold_lines(squares)) == 5
+    tabs = cube_net.glue_tabs(squares)
+    assert len(tabs) == 7
+    face_at = {s.cell: s.face for s in squares}
+    edges = {frozenset((face_at[t.cell], t.under_face)) for t in tabs}
+    assert len(edges) == 7
+    assert all(OPPOSITE_FACE[a] != b for a, b in map(tuple, edges))

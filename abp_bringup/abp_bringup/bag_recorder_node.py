@@ -23,11 +23,11 @@ node's namespace and written to the bag with their absolute names (a graph under
 import sys
 
 from rclpy.event_handler import SubscriptionEventCallbacks
-from rclpy.node import Node
 from rclpy.qos import qos_policy_name_from_kind
 
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
+from abp_common.tolerant_subscriptions import TolerantNode
 
 from . import bag_qos
 from .bag import RECORDER_SPECS, BagError, BagWriter, recorded_topics
@@ -37,7 +37,7 @@ from .bag_ros import message_class, recording_qos, to_bag_qos
 DISCOVERY_PERIOD = 0.1
 
 
-class BagRecorder(Node):
+class BagRecorder(TolerantNode):
     def __init__(self):
         super().__init__('bag_recorder')
         values = declare_all(self, RECORDER_SPECS)

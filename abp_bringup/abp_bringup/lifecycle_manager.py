@@ -29,7 +29,6 @@ import time
 
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
-from rclpy.node import Node
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
@@ -38,6 +37,7 @@ from abp_common.lifecycle_report import next_transition, not_active, unmatched
 from abp_common.node_runner import run_node
 from abp_common.param_spec import BOOL, DOUBLE, STRING_ARRAY, ParamSpec
 from abp_common.parameters import declare_all
+from abp_common.tolerant_subscriptions import TolerantNode
 
 # Dependency order: the sim bridge's clock and sensors first, then the robot's tf tree
 # (robot_state), the planner last.
@@ -69,7 +69,7 @@ MANAGER_SPECS = [
 ]
 
 
-class LifecycleManager(Node):
+class LifecycleManager(TolerantNode):
     def __init__(self):
         super().__init__('lifecycle_manager')
         self.values = declare_all(self, MANAGER_SPECS)

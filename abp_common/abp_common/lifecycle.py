@@ -7,11 +7,15 @@ implements two methods:
   (raise ValueError, or one of the node's configuration error types, on a bad value);
 - `activate()`: open the publishers, subscriptions, services, action servers and timers.
 
-The base class records what each of them created (endpoints, timers, waitables,
-parameters, parameter callbacks) and undoes it on the way back: deactivate destroys what
-activate opened (so an inactive node publishes and serves nothing), cleanup what
-configure made (so configure can run again). Optional hooks `deactivate()` and
-`cleanup()` run first.
+The base class records what each of them created (endpoints, timers, action servers and
+clients, parameters, parameter callbacks) and undoes it on the way back: deactivate
+destroys what activate opened (so an inactive node publishes and serves nothing), cleanup
+what configure made (so configure can run again). Optional hooks `deactivate()` and
+`cleanup()` run first. The node keeps that record itself, through rclpy's public factory
+and destroy methods (`entity_registry.EntityRegistry`), and tracks its lifecycle state
+itself (`state_label()`): rclpy's private lists and state machine are not read. Its
+subscriptions drop a message rclpy cannot convert instead of ending the node
+(`tolerant_subscriptions`).
 
 The boolean parameter `autostart` (default true) makes the node configure and activate
 itself as soon as it is built (`start()`, called by `node_runner.run_node`): a plain
@@ -37,23 +41,25 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_srvs.srv import Trigger
 
+from .entity_registry import EntityRegistry
 from .lifecycle_report import endpoint_report
+from .tolerant_subscriptions import TolerantSubscriptions
 
 AUTOSTART = 'autostart'
 ENDPOINT_STATUS = '~/endpoint_status'
 BASE_CONFIG_ERRORS = (ValueError, rclpy.exceptions.InvalidParameterValueException,
                       rclpy.exceptions.InvalidParameterTypeException)
 
-_ENTITY_LISTS = ('_publishers', '_subscriptions', '_services', '_clients', '_timers',
-                 '_guards')
-_CALLBACK_LISTS = ('_pre_set_parameters_callbacks', '_on_set_parameters_callbacks',
-                   '_post_set_parameters_callbacks')
 
-
-class ManagedNode(LifecycleNode):
+class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
     """A lifecycle node whose subclasses implement configure() and activate()."""
 
     def __init__(self, node_name, **kwargs):
+        self.registry_init()
+        # rclpy has no public getter for the state; each transition callback below sets
+        # the state its result leads to.
+        self._lifecycle_state = 'unconfigured'
+        self._activated = False   # activate() succeeded and its entities are not undone
         super().__init__(node_name, **kwargs)
         self.declare_parameter(AUTOSTART, True, ParameterDescriptor(
             description='Configure and activate this node as soon as it starts (true), or '
@@ -61,7 +67,6 @@ class ManagedNode(LifecycleNode):
         self.config_errors = BASE_CONFIG_ERRORS
         self.configuration_error = None    # the last configure failure (an exception)
         self.instance = f'{os.getpid()}-{uuid.uuid4().hex[:8]}'
-        self._made = {'configure': None, 'activate': None}
         self.create_service(Trigger, ENDPOINT_STATUS, self._on_endpoint_status)
 
     # -- what subclasses implement ---------------------------------------------------
@@ -96,70 +101,89 @@ class ManagedNode(LifecycleNode):
             raise RuntimeError('activate failed (see the log above)')
 
     def state_label(self):
-        return self._state_machine.current_state[1]
+        """The lifecycle state: unconfigured, inactive, active or finalized (or the
+        transition running: configuring, activating, ...)."""
+        return self._lifecycle_state
 
     # -- transitions -----------------------------------------------------------------
     def on_configure(self, state):
+        self._lifecycle_state = 'configuring'
         self.configuration_error = None
-        before = self._snapshot()
         try:
-            self.configure()
+            with self.recording('configure'):
+                self.configure()
         except Exception as error:  # noqa: BLE001 -- reported, then the node is undone
-            made = self._diff(before)
-            self._run_hook(lambda: self._undo(made), 'destroying')
+            self._undo('configure')
             self.configuration_error = error
             if isinstance(error, self.config_errors):
                 self.get_logger().error(f'configure failed: configuration error: {error}')
-                return TransitionCallbackReturn.FAILURE
-            self.get_logger().error(f'configure failed: {type(error).__name__}: {error}\n'
-                                    f'{traceback.format_exc()}')
-            return TransitionCallbackReturn.FAILURE
-        self._made['configure'] = self._diff(before)
-        return TransitionCallbackReturn.SUCCESS
+            else:
+                self.get_logger().error(f'configure failed: {type(error).__name__}: '
+                                        f'{error}\n{traceback.format_exc()}')
+            return self._ends_in('unconfigured', TransitionCallbackReturn.FAILURE)
+        return self._ends_in('inactive', TransitionCallbackReturn.SUCCESS)
 
     def on_activate(self, state):
-        before = self._snapshot()
+        self._lifecycle_state = 'activating'
         try:
-            self.activate()
+            with self.recording('activate'):
+                self.activate()
         except Exception as error:  # noqa: BLE001
-            made = self._diff(before)
-            self._run_hook(lambda: self._undo(made), 'destroying')
+            self._undo('activate')
             self.get_logger().error(f'activate failed: {type(error).__name__}: {error}\n'
                                     f'{traceback.format_exc()}')
-            return TransitionCallbackReturn.FAILURE
-        self._made['activate'] = self._diff(before)
+            return self._ends_in('inactive', TransitionCallbackReturn.FAILURE)
+        self._activated = True
         # Lifecycle publishers (create_lifecycle_publisher), if a node has any.
         result = super().on_activate(state)
         if result == TransitionCallbackReturn.SUCCESS:
             self.get_logger().info('active')
-        return result
+            return self._ends_in('active', result)
+        # FAILURE leaves the node inactive; ERROR goes on to on_error.
+        return self._ends_in('inactive', result)
 
     def on_deactivate(self, state):
+        self._lifecycle_state = 'deactivating'
         super().on_deactivate(state)
         self._run_hook(self.deactivate)
-        self._run_hook(lambda: self._undo(self._made['activate']), 'destroying')
-        self._made['activate'] = None
+        self._undo('activate')
+        self._activated = False
         self.get_logger().info('inactive')
-        return TransitionCallbackReturn.SUCCESS
+        return self._ends_in('inactive', TransitionCallbackReturn.SUCCESS)
 
     def on_cleanup(self, state):
+        self._lifecycle_state = 'cleaningup'
         self._run_hook(self.cleanup)
-        self._run_hook(lambda: self._undo(self._made['configure']), 'destroying')
-        self._made['configure'] = None
+        self._undo('configure')
         self.get_logger().info('unconfigured (cleaned up)')
-        return TransitionCallbackReturn.SUCCESS
+        return self._ends_in('unconfigured', TransitionCallbackReturn.SUCCESS)
 
     def on_shutdown(self, state):
-        if self._made['activate'] is not None:
-            self._run_hook(self.deactivate)
-        self._undo(self._made['activate'])
-        self._undo(self._made['configure'])
-        self._made = {'configure': None, 'activate': None}
-        return TransitionCallbackReturn.SUCCESS
+        self._lifecycle_state = 'shuttingdown'
+        self._undo_all()
+        return self._ends_in('finalized', TransitionCallbackReturn.SUCCESS)
 
     def on_error(self, state):
-        self.on_shutdown(state)
-        return TransitionCallbackReturn.SUCCESS
+        self._lifecycle_state = 'errorprocessing'
+        self._undo_all()
+        return self._ends_in('unconfigured', TransitionCallbackReturn.SUCCESS)
+
+    def _ends_in(self, label, result):
+        self._lifecycle_state = label
+        return result
+
+    def _undo_all(self):
+        if self._activated:
+            self._run_hook(self.deactivate)
+        self._undo('activate')
+        self._activated = False
+        self._undo('configure')
+
+    def _undo(self, phase):
+        def report(entity, error):
+            self.get_logger().error(f'destroying {entity!r} failed: '
+                                    f'{type(error).__name__}: {error}')
+        self.undo(phase, report)
 
     def _run_hook(self, hook, what=None):
         try:
@@ -167,53 +191,6 @@ class ManagedNode(LifecycleNode):
         except Exception as error:  # noqa: BLE001 -- the transition must still complete
             self.get_logger().error(f'{what or hook.__name__} failed: '
                                     f'{type(error).__name__}: {error}')
-
-    # -- bookkeeping of what a transition made ---------------------------------------
-    def _snapshot(self):
-        snap = {name: list(getattr(self, name)) for name in _ENTITY_LISTS + _CALLBACK_LISTS}
-        snap['waitables'] = list(self.waitables)
-        snap['parameters'] = set(self._parameters)
-        return snap
-
-    def _diff(self, before):
-        now = self._snapshot()
-        made = {}
-        for name, items in now.items():
-            if name == 'parameters':
-                made[name] = [p for p in items if p not in before[name]]
-            else:
-                old = {id(x) for x in before[name]}
-                made[name] = [x for x in items if id(x) not in old]
-        return made
-
-    def _undo(self, made):
-        if not made:
-            return
-        # Endpoints first: destroying one also removes its QoS event handlers (waitables).
-        destroyers = {'_publishers': self.destroy_publisher,
-                      '_subscriptions': self.destroy_subscription,
-                      '_services': self.destroy_service, '_clients': self.destroy_client,
-                      '_timers': self.destroy_timer, '_guards': self.destroy_guard_condition}
-        for name, destroy in destroyers.items():
-            for entity in made[name]:
-                destroy(entity)
-        for waitable in made['waitables']:
-            if any(w is waitable for w in self.waitables):
-                destroy = getattr(waitable, 'destroy', None)
-                if destroy is not None:
-                    destroy()       # an action server or client removes itself
-                if any(w is waitable for w in self.waitables):
-                    self.remove_waitable(waitable)
-        for name in _CALLBACK_LISTS:
-            callbacks = getattr(self, name)
-            for callback in made[name]:
-                if callback in callbacks:
-                    callbacks.remove(callback)
-        for parameter in made['parameters']:
-            # undeclare_parameter refuses read-only ones; configure declares them again
-            # (with the values given at start) after a cleanup.
-            self._parameters.pop(parameter, None)
-            self._descriptors.pop(parameter, None)
 
     # -- status for the lifecycle manager --------------------------------------------
     def endpoint_report(self):

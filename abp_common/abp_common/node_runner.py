@@ -6,10 +6,12 @@ respawning launcher does not loop on a configuration that can never work); Ctrl-
 the spin quietly, also when it shuts the context down under a running callback;
 `on_exit(node)` runs before the node is destroyed.
 
-A message that rclpy itself fails to take (its conversion to a Python message raises in
-`take_message`, which rclpy does now and then under heavy load: ros2/rclpy#848,
-ros/joint_state_publisher#117) is logged, throttled, and dropped; the spin goes on
-(`tolerate_failed_takes`). An exception from the node's own callback still ends it.
+A message that rclpy fails to convert to a Python message (which it does now and then
+under heavy load: ros2/rclpy#848, ros/joint_state_publisher#117) is logged, throttled,
+and dropped; the spin goes on. That is the node's subscriptions' doing, not the
+executor's (`tolerant_subscriptions`: every abp node class has them), so any executor
+works and no rclpy internals are replaced. An exception from the node's own callback
+still ends it.
 
 A managed node (`lifecycle.ManagedNode`) is started here: with `autostart` true (the
 default) it configures and activates before the spin, and a configuration error in its
@@ -47,7 +49,6 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
         rclpy.try_shutdown()
         return CONFIGURATION_ERROR_EXIT_CODE
     executor = make_executor()
-    tolerate_failed_takes(executor, node.get_logger())
     executor.add_node(node)
     try:
         executor.spin()
@@ -66,28 +67,4 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     return 0
 
 
-def tolerate_failed_takes(executor, logger):
-    """Make `executor` drop a message that rclpy fails to take, with a throttled error,
-    instead of raising out of spin().
-
-    Why here: the executor takes a message (`_take_subscription`) before any callback runs,
-    and an exception there leaves the subscription marked busy and its callback group
-    executing, so neither would ever run again; returning "no message" instead lets the
-    executor finish the handler as for an empty take. Exceptions from callbacks are not
-    affected."""
-    take = executor._take_subscription
-
-    def take_or_drop(subscription):
-        try:
-            return take(subscription)
-        except Exception as error:  # noqa: BLE001 - rclpy's, not the node's (docstring)
-            logger.error(f'dropped a message on {subscription.topic_name} that rclpy could '
-                         f'not take ({type(error).__name__}: {error}); spinning on',
-                         throttle_duration_sec=5.0)
-            return None
-
-    executor._take_subscription = take_or_drop
-    return executor
-
-
-__all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'run_node', 'tolerate_failed_takes']
+__all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'run_node']

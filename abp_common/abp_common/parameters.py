@@ -41,20 +41,33 @@ def descriptor(spec, note=''):
     return ParameterDescriptor(description=text, read_only=spec.read_only, **kw)
 
 
-def _accept_integers_for_doubles(node, specs):
-    # `-p speedup:=10` and YAML `alpha: 1` arrive as integers; take them for a double
-    # parameter (as users write numbers) rather than refusing the type.
-    overrides = getattr(node, '_parameter_overrides', None)
-    if not isinstance(overrides, dict):
-        return
-    for spec in specs:
-        given = overrides.get(spec.name)
-        if given is None:
-            continue
-        if spec.kind == DOUBLE and given.type_ == Parameter.Type.INTEGER:
-            overrides[spec.name] = Parameter(spec.name, value=float(given.value))
-        elif spec.kind == DOUBLE_ARRAY and given.type_ == Parameter.Type.INTEGER_ARRAY:
-            overrides[spec.name] = Parameter(spec.name, value=[float(v) for v in given.value])
+def _declare(node, spec, value, described):
+    """declare_parameter, taking an integer given for a double (`-p speedup:=10`, YAML
+    `alpha: 1`: users write numbers) as that double rather than refusing its type."""
+    try:
+        return node.declare_parameter(spec.name, value, described)
+    except rclpy.exceptions.InvalidParameterTypeException:
+        if spec.kind not in (DOUBLE, DOUBLE_ARRAY):
+            raise
+        given = _given_value(node, spec.name)
+        if spec.kind == DOUBLE and isinstance(given, int) and not isinstance(given, bool):
+            as_double = float(given)
+        elif (spec.kind == DOUBLE_ARRAY and given is not None and len(given)
+              and all(isinstance(v, int) and not isinstance(v, bool) for v in given)):
+            as_double = [float(v) for v in given]
+        else:
+            raise
+        return node.declare_parameter(spec.name, as_double, described, ignore_override=True)
+
+
+def _given_value(node, name):
+    """The value given for `name` at start. rclpy has no public getter for the values
+    given at start: declaring the parameter untyped for a moment reads it."""
+    node.declare_parameter(name, None, ParameterDescriptor(dynamic_typing=True))
+    try:
+        return node.get_parameter(name).value
+    finally:
+        node.undeclare_parameter(name)
 
 
 def declare_all(node, specs, note=None):
@@ -62,10 +75,9 @@ def declare_all(node, specs, note=None):
 
     Raises ValueError naming the parameter when a given value breaks its choices (the
     ranges rclpy checks itself, raising InvalidParameterValueException)."""
-    _accept_integers_for_doubles(node, specs)
     for spec in specs:
         value = _TYPE[spec.kind] if spec.default is None else spec.default
-        node.declare_parameter(spec.name, value, descriptor(spec, note(spec) if note else ''))
+        _declare(node, spec, value, descriptor(spec, note(spec) if note else ''))
     values = read_all(node, specs)
     for spec in specs:
         spec.check(values[spec.name])

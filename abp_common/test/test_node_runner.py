@@ -1,48 +1,44 @@
-"""run_node over real DDS: a message rclpy fails to take (injected in rclpy's own take
-step) is dropped and the node spins on; an exception from the node's own callback still
-ends it."""
+"""run_node over real DDS: a message rclpy cannot convert to the topic's type is dropped
+with a logged error and the node spins on; an exception from the node's own callback
+still ends it.
+
+The failure is real, not injected: the tester publishes bytes that are not a valid
+std_msgs/String (a string length far beyond the message), through rclpy's public raw
+publish. An abp node's subscriptions take raw bytes and convert them in Python
+(`tolerant_subscriptions`), so rclpy's conversion failing, as it does now and then under
+load, and a malformed message end the same way: in the drop. (A plain rclpy subscription
+never sees such bytes: Fast DDS drops them in its take, silently.)"""
 
 import pytest
 
 pytest.importorskip('rclpy')
 
+from rclpy.serialization import serialize_message  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-# The listener fails rclpy's first take on /take_fails_once (as rclpy's take_message does now and
-# then under load), then stops after two messages (`stop`) or raises in its callback (`bug`).
-LISTENER = """
+TOPIC = '/conversion_fails_once'
+
+# The listener stops after two messages (`stop`) or raises in its callback (`bug`).
+LISTENER = f"""
 import sys
 
 import rclpy
-from rclpy.executors import Executor
-from rclpy.node import Node
 from std_msgs.msg import String
 
 from abp_common.node_runner import run_node
-
-original_take = Executor._take_subscription
-failed = []
+from abp_common.tolerant_subscriptions import TolerantNode
 
 
-def take_failing_once(self, sub):
-    if sub.topic_name == '/take_fails_once' and not failed:
-        failed.append(True)
-        raise RuntimeError('Unable to convert call argument (injected)')
-    return original_take(self, sub)
-
-
-Executor._take_subscription = take_failing_once
-
-
-class Listener(Node):
+class Listener(TolerantNode):
     def __init__(self):
         super().__init__('listener')
         self.received = 0
-        self.create_subscription(String, '/take_fails_once', self.on_message, 10)
+        self.create_subscription(String, '{TOPIC}', self.on_message, 10)
 
     def on_message(self, msg):
+        assert isinstance(msg, String), type(msg)
         self.received += 1
-        print(f'got message {self.received}', flush=True)
+        print(f'got message {{self.received}}: {{msg.data}}', flush=True)
         if self.received == 2:
             if sys.argv[1] == 'bug':
                 raise ValueError('a bug in the callback')
@@ -53,20 +49,41 @@ sys.exit(run_node('listener', Listener))
 """
 
 
+def malformed_string():
+    """A serialised String whose length field claims a billion bytes."""
+    good = bytearray(serialize_message(String(data='hello')))
+    length_at = 4                              # after the 4-byte CDR encapsulation header
+    assert int.from_bytes(good[length_at:length_at + 4], 'little') == len('hello') + 1
+    good[length_at:length_at + 4] = (10 ** 9).to_bytes(4, 'little')
+    return bytes(good)
+
+
 @pytest.mark.parametrize('ending', ['stop', 'bug'])
-def test_a_failed_take_is_dropped_and_a_callback_error_is_not(
+def test_a_message_rclpy_cannot_convert_is_dropped_and_a_callback_error_is_not(
         tmp_path, ros_processes, tester, spin, ending):
     script = tmp_path / 'listener.py'
     script.write_text(LISTENER)
     proc = ros_processes.start_python(script, ending)
     node, executor = tester
-    publisher = node.create_publisher(String, '/take_fails_once', 10)
-    # A steady stream until the listener ends: the first take fails, later ones arrive.
-    node.create_timer(0.05, lambda: publisher.publish(String(data='hello')))
+    publisher = node.create_publisher(String, TOPIC, 10)
+    assert spin(executor, lambda: publisher.get_subscription_count() > 0, 60), \
+        'the listener never subscribed'
+    # Alternate malformed and valid messages until the listener ends: every malformed one
+    # is dropped, the valid ones arrive.
+    sent = []
+
+    def send():
+        sent.append(True)
+        if len(sent) % 2:
+            publisher.publish(malformed_string())
+        else:
+            publisher.publish(String(data=f'valid {len(sent)}'))
+
+    node.create_timer(0.05, send)
     assert spin(executor, lambda: proc.poll() is not None, 60), 'listener did not end'
     out = ros_processes.transcript(proc)
-    assert 'dropped a message on /take_fails_once that rclpy could not take' in out, out
-    assert 'got message 2' in out, out
+    assert f'dropped a message on {TOPIC} that rclpy could not convert to String' in out, out
+    assert 'got message 2: valid' in out, out
     if ending == 'stop':
         assert proc.returncode == 0, out
     else:

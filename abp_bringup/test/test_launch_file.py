@@ -337,7 +337,8 @@ def test_the_merge_above_is_what_rclpy_does(launch, tmp_path):
             real = rclpy.create_node(name, namespace='/robot1', context=context,
                                      automatically_declare_parameters_from_overrides=True)
             try:
-                got = {key: param.value for key, param in real._parameters.items()}
+                got = {param.name: param.value for param in real.get_parameters(
+                    real.list_parameters([], 0).names)}
             finally:
                 real.destroy_node()
         finally:

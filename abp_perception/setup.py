@@ -20,6 +20,7 @@ setup(
         'console_scripts': [
             'artag_detector = abp_perception.artag_detector_node:main',
             'aspect_matcher = abp_perception.aspect_matcher_node:main',
+            'camera = abp_perception.camera_node:main',
         ],
     },
 )

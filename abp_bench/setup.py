@@ -31,6 +31,7 @@ setup(
             'episode_trace = abp_bench.episode_trace:main',
             'soak = abp_bench.soak:main',
             'transport_benchmark = abp_bench.transport_benchmark:main',
+            'episode_report = abp_bench.episode_report:main',
         ],
     },
 )

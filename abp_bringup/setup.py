@@ -30,7 +30,6 @@ setup(
             'bag_player = abp_bringup.bag_player:main',
             'health = abp_bringup.health:main',
             'lifecycle_manager = abp_bringup.lifecycle_manager:main',
-            'episode_report = abp_bringup.episode_report:main',
         ],
     },
 )

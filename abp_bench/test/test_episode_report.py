@@ -25,8 +25,8 @@ from geometry_msgs.msg import Point32  # noqa: E402
 from rclpy.serialization import serialize_message  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
+from abp_bench.episode_report import load_episodes, write_reports  # noqa: E402
 from abp_bringup.bag import BagWriter, graph_topics  # noqa: E402
-from abp_bringup.episode_report import load_episodes, write_reports  # noqa: E402
 from abp_msgs.msg import (  # noqa: E402
     Belief,
     ExecutedAction,
@@ -48,8 +48,8 @@ DICTIONARY = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50)
 
 
 def executable(name):
-    prefix = ament_index.get_package_prefix('abp_bringup')
-    return os.path.join(prefix, 'lib', 'abp_bringup', name)
+    prefix = ament_index.get_package_prefix('abp_bench')
+    return os.path.join(prefix, 'lib', 'abp_bench', name)
 
 
 def stamp(t_ns):

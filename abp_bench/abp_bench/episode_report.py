@@ -27,9 +27,15 @@ from dataclasses import dataclass, field
 import numpy as np
 from rosbags.highlevel import AnyReader
 
+from abp_bringup.bag import (
+    BagError,
+    bag_topics,
+    deserialize,
+    graph_name,
+    read_bag,
+    typestore,
+)
 from abp_common import names
-
-from .bag import BagError, bag_topics, deserialize, graph_name, read_bag, typestore
 
 TOP_CANDIDATES = 5
 DEFAULT_SIZE = (640, 480)

@@ -14,7 +14,9 @@ drawn on a blank frame. A bag with several episodes (action sequence numbers tha
 again) gets one picture per episode: FILE-1.png, FILE-2.png, ...
 
 Times are the bag's receive times (one clock for every topic); a frame and its
-detections are matched by the image's header stamp.
+detections are matched by the image's header stamp. Only the sparse topics are read
+whole; frames, detections, camera_info and ground truth are read in time windows (the
+MCAP chunk index), so a bag of a gigabyte of frames is not read through.
 """
 
 import argparse
@@ -29,10 +31,8 @@ from rosbags.highlevel import AnyReader
 
 from abp_bringup.bag import (
     BagError,
-    bag_topics,
     deserialize,
     graph_name,
-    read_bag,
     typestore,
 )
 from abp_common import names
@@ -41,9 +41,6 @@ TOP_CANDIDATES = 5
 DEFAULT_SIZE = (640, 480)
 DETECTION_WINDOW_NS = 5_000_000_000   # a frame's detections arrive within this after it
 THUMBNAIL_WIDTH = 320          # frames are shrunk to this width: the picture stays small
-TOPICS = (names.EXECUTED_ACTION, names.PLAN, names.BELIEF, names.TAG_DETECTIONS,
-          names.GROUND_TRUTH, names.CAMERA_INFO)
-
 
 @dataclass
 class Tag:
@@ -101,40 +98,48 @@ def _last_before(times, items, t_ns):
     return items[i - 1] if i else None
 
 
-class _Recorded:
-    """The small topics of a bag by graph name, read in one pass and kept serialized:
-    [(time_ns, msgtype, bytes)]; `msgs` deserializes (cached), `last` only the last one.
-    Tag detections and camera infos come at the camera rate: only those used are
-    deserialized."""
+class _Bag:
+    """An open bag read by graph topic name. The sparse topics (actions, plans, beliefs)
+    are read whole; the dense ones (frames, detections, camera_info, ground truth) only
+    in time windows, which rosbags seeks to by the MCAP chunk index instead of reading
+    (and decompressing) the gigabyte of frames around them."""
 
-    def __init__(self, path, store):
-        self.store = store
-        topics = bag_topics(path)
-        self.by_name = {name: [] for name in TOPICS}
-        self.image_topic = next((t for t in topics if graph_name(t) == names.IMAGE), None)
-        wanted = {t for t in topics if graph_name(t) in TOPICS}
-        for topic, msgtype, t_ns, data in read_bag(path, wanted):
-            self.by_name[graph_name(topic)].append((t_ns, msgtype, data))
-        self._cache = {}
+    SPARSE = (names.EXECUTED_ACTION, names.PLAN, names.BELIEF)
+
+    def __init__(self, reader, store):
+        self.reader, self.store = reader, store
+        self.connections = {}
+        for connection in reader.connections:
+            name = graph_name(connection.topic)
+            if name:
+                self.connections.setdefault(name, []).append(connection)
+        self.sparse = {name: self.read(name) for name in self.SPARSE}
+
+    def read(self, name, start=None, stop=None, first_only=False):
+        """[(receive time, message)] of graph topic `name` in [start, stop)."""
+        connections = self.connections.get(name)
+        if not connections:
+            return []
+        out = []
+        for connection, t_ns, data in self.reader.messages(connections=connections,
+                                                           start=start, stop=stop):
+            out.append((t_ns, deserialize(self.store, data, connection.msgtype)))
+            if first_only:
+                break
+        return out
+
+    def last_before(self, name, until_ns, window_ns=10_000_000_000):
+        """The last message of `name` received before until_ns (looked for in the last
+        `window_ns` first: a latched topic may have only one, long before)."""
+        found = self.read(name, max(0, until_ns - window_ns), until_ns) or \
+            self.read(name, None, until_ns)
+        return found[-1][1] if found else None
 
     def times(self, name):
-        return [t for t, _, _ in self.by_name[name]]
-
-    def msg(self, name, index):
-        key = (name, index)
-        if key not in self._cache:
-            _, msgtype, data = self.by_name[name][index]
-            self._cache[key] = deserialize(self.store, data, msgtype)
-        return self._cache[key]
+        return [t for t, _ in self.sparse[name]]
 
     def msgs(self, name):
-        return [self.msg(name, i) for i in range(len(self.by_name[name]))]
-
-    def timed(self, name):
-        return [(t, self.msg(name, i)) for i, t in enumerate(self.times(name))]
-
-    def last(self, name):
-        return self.msg(name, len(self.by_name[name]) - 1) if self.by_name[name] else None
+        return [m for _, m in self.sparse[name]]
 
 
 def split_episodes(actions):
@@ -159,21 +164,18 @@ def _fill_belief(step, belief_times, beliefs, until_ns):
         step.belief_step = int(belief.step)
 
 
-def build_episodes(path, store=None):
-    """The Episode(s) of a bag, without images (see attach_images)."""
-    store = store or typestore()
-    rec = _Recorded(path, store)
+def build_episodes(rec, path=''):
+    """The Episode(s) of an open `_Bag`, without frames (see attach_images)."""
     belief_times, beliefs = rec.times(names.BELIEF), rec.msgs(names.BELIEF)
     plan_times, plans = rec.times(names.PLAN), rec.msgs(names.PLAN)
-    truth = rec.last(names.GROUND_TRUTH)
-    info = rec.last(names.CAMERA_INFO)
-    size = (int(info.width), int(info.height)) if info is not None and info.width \
-        else DEFAULT_SIZE
-    actions = rec.timed(names.EXECUTED_ACTION)
+    actions = rec.sparse[names.EXECUTED_ACTION]
     if not actions and not beliefs:
         raise BagError(f'bag {path} has no {names.EXECUTED_ACTION} and no {names.BELIEF}: '
                        'not a recording of a recognition episode')
     end_ns = max([t for t, _ in actions] + belief_times + plan_times)
+    info = rec.last_before(names.CAMERA_INFO, end_ns + 1)
+    size = (int(info.width), int(info.height)) if info is not None and info.width \
+        else DEFAULT_SIZE
     # A belief whose step does not grow was reset (a new Recognize goal).
     resets = [t for i, t in enumerate(belief_times)
               if i and beliefs[i].step <= beliefs[i - 1].step]
@@ -203,28 +205,24 @@ def build_episodes(path, store=None):
             until = steps[i + 1].time_ns - 1 if i + 1 < len(steps) else episode_end - 1
             _fill_belief(step, belief_times, beliefs, until)
         last = steps[-1]
+        truth = rec.last_before(names.GROUND_TRUTH, episode_end)
         episodes.append(Episode(steps=steps, final_candidates=last.candidates,
                                 final_entropy=last.entropy,
                                 truth=str(truth.object_id) if truth is not None else '',
                                 image_size=size, bag=str(path)))
-    return episodes, rec
+    return episodes
 
 
 def _detections_near(rec, t_ns, stamp=None):
     """The tag detection array of the frame stamped `stamp` (received within
     DETECTION_WINDOW_NS after t_ns, the frame's time), else the first one received at or
     after t_ns."""
-    times = rec.times(names.TAG_DETECTIONS)
-    first = bisect.bisect_left(times, t_ns)
-    if first >= len(times):
-        return None
     if stamp is not None:
-        end = bisect.bisect_right(times, t_ns + DETECTION_WINDOW_NS)
-        for i in range(first, end):
-            msg = rec.msg(names.TAG_DETECTIONS, i)
+        for _, msg in rec.read(names.TAG_DETECTIONS, t_ns, t_ns + DETECTION_WINDOW_NS):
             if stamp_ns(msg.header) == stamp:
                 return msg
-    return rec.msg(names.TAG_DETECTIONS, first)
+    found = rec.read(names.TAG_DETECTIONS, t_ns, first_only=True)
+    return found[0][1] if found else None
 
 
 def _tags_of(msg):
@@ -254,38 +252,23 @@ def image_to_display(msg, width=THUMBNAIL_WIDTH):
     return np.ascontiguousarray(image), scale
 
 
-def _first_frame_after(reader, connections, t_ns):
-    """(receive time, serialized frame) of the first frame at or after t_ns, or None:
-    reading from t_ns seeks by the bag's index instead of reading every frame before."""
-    for connection, frame_ns, data in reader.messages(connections=connections, start=t_ns):
-        return frame_ns, connection.msgtype, data
-    return None
-
-
-def attach_images(path, episodes, rec, store):
+def attach_images(rec, episodes):
     """Give each step the first frame received at or after its time (only those frames
     are read and deserialized) and the tags detected in it."""
     steps = [s for e in episodes for s in e.steps]
-    if rec.image_topic is not None and steps:
-        try:
-            with AnyReader([pathlib.Path(path)], default_typestore=store) as reader:
-                connections = [c for c in reader.connections if c.topic == rec.image_topic]
-                frames = {}                   # frame time -> (thumbnail, scale, stamp)
-                for step in steps:
-                    found = _first_frame_after(reader, connections, step.time_ns)
-                    if found is None:
-                        continue
-                    frame_ns, msgtype, data = found
-                    if frame_ns not in frames:
-                        msg = deserialize(store, data, msgtype)
-                        frames[frame_ns] = (*image_to_display(msg), stamp_ns(msg.header))
-                    step.image, step.image_scale, stamp = frames[frame_ns]
-                    step.frame_ns = frame_ns
-                    det = _detections_near(rec, frame_ns, stamp)
-                    if det is not None:
-                        step.tags, step.detections_found = _tags_of(det), True
-        except Exception as error:  # rosbags raises several types for unreadable bags
-            raise BagError(f'cannot read the images of bag {path}: {error}') from error
+    frames = {}                               # frame time -> (thumbnail, scale, stamp)
+    for step in steps:
+        found = rec.read(names.IMAGE, step.time_ns, first_only=True)
+        if not found:
+            continue
+        frame_ns, msg = found[0]
+        if frame_ns not in frames:
+            frames[frame_ns] = (*image_to_display(msg), stamp_ns(msg.header))
+        step.image, step.image_scale, stamp = frames[frame_ns]
+        step.frame_ns = frame_ns
+        det = _detections_near(rec, frame_ns, stamp)
+        if det is not None:
+            step.tags, step.detections_found = _tags_of(det), True
     for episode in episodes:
         episode.has_images = any(s.image is not None for s in episode.steps)
     for step in steps:                     # no frame after it: the detections then
@@ -298,9 +281,18 @@ def attach_images(path, episodes, rec, store):
 
 def load_episodes(path):
     """Every Episode of the bag at `path`, with frames and detections."""
-    store = typestore()
-    episodes, rec = build_episodes(path, store)
-    return attach_images(path, episodes, rec, store)
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise BagError(f'bag {path} does not exist')
+    try:
+        store = typestore()
+        with AnyReader([path], default_typestore=store) as reader:
+            rec = _Bag(reader, store)
+            return attach_images(rec, build_episodes(rec, path))
+    except BagError:
+        raise
+    except Exception as error:  # rosbags raises several types for unreadable bags
+        raise BagError(f'cannot read bag {path}: {error}') from error
 
 
 def output_paths(out, count):

@@ -84,6 +84,17 @@ def test_configure_fails_with_the_reason(rclpy_context, bad_sources, case):
         node.destroy_node()
 
 
+def test_an_integer_source_is_a_device_index(rclpy_context):
+    # `-p source:=0` gives an integer parameter: taken as /dev/video0's index.
+    node = CameraNode(context=rclpy_context, parameter_overrides=[
+        Parameter('autostart', value=False), Parameter('source', value=97)])
+    try:
+        assert node.trigger_configure() == TransitionCallbackReturn.FAILURE
+        assert 'no camera device /dev/video97' in str(node.configuration_error)
+    finally:
+        node.destroy_node()
+
+
 @pytest.mark.parametrize('case', ('missing device', 'unreadable file', 'size mismatch'))
 def test_the_executable_exits_with_a_configuration_error(bad_sources, case):
     source, calibration, expected = bad_sources[case]

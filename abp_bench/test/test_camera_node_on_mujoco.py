@@ -64,9 +64,10 @@ def render_episode_frames(folder, models, model, yaw_deg):
         world.close()
 
 
-@pytest.mark.parametrize('yaw_deg', [180.0, 225.0])   # a 2-tag and a 3-tag aspect
+# A 2-tag aspect through raw images, a 3-tag one through the camera's JPEG frames.
+@pytest.mark.parametrize('yaw_deg, transport', [(180.0, 'raw'), (225.0, 'compressed')])
 def test_mujoco_frames_through_camera_detector_matcher_and_belief(
-        ros_processes, tester, spin, tmp_path, yaw_deg):
+        ros_processes, tester, spin, tmp_path, yaw_deg, transport):
     models = robot_set(seed=SEED)
     model = int(np.flatnonzero(models.mass == 0)[5])          # a uniform cube
     kin, q, state = render_episode_frames(tmp_path / 'frames', models, model, yaw_deg)
@@ -78,6 +79,7 @@ def test_mujoco_frames_through_camera_detector_matcher_and_belief(
     model_args = ['-p', 'model_set:=robot', '-p', f'seed:={SEED}']
     ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',
                          '-p', f"frame_map:=['{DRIVER_FRAME}:camera_optical_frame']",
+                         '-p', f'image_transport:={transport}',
                          # A fixed camera: the newest joint state is the pose at any stamp.
                          '-p', 'joint_state_lookup:=latest'])
     ros_processes.start([executable('abp_perception', 'aspect_matcher'), '--ros-args',
@@ -107,7 +109,8 @@ def test_mujoco_frames_through_camera_detector_matcher_and_belief(
     camera = ros_processes.start([
         executable('abp_perception', 'camera'), '--ros-args',
         '-p', f"source:={tmp_path / 'frames'}", '-p', f'calibration_file:={calibration}',
-        '-p', f'frame_id:={DRIVER_FRAME}', '-p', 'rate:=5.0', '-p', 'loop:=true'])
+        '-p', f'frame_id:={DRIVER_FRAME}', '-p', 'rate:=5.0', '-p', 'loop:=true',
+        '-p', f"publish_compressed:={'true' if transport == 'compressed' else 'false'}"])
 
     assert spin(executor, lambda: any(b.step >= 1 for b in beliefs) and observations, 120), \
         f'{len(detections)} detections, {len(observations)} observations; camera exit ' \

@@ -110,33 +110,39 @@ def test_a_folder_is_published_with_camera_info_and_jpeg(ros_processes, tester, 
     folder = write_frames(tmp_path / 'frames', 3)
     proc = ros_processes.start([
         executable(), '--ros-args', '-p', f'source:={folder}',
-        '-p', f'calibration_file:={camera_yaml_path()}', '-p', 'rate:=20.0',
+        '-p', f'calibration_file:={camera_yaml_path()}', '-p', 'rate:=10.0',
         '-p', 'frame_id:=webcam_optical', '-p', 'publish_compressed:=true',
         '-p', 'loop:=true'])
     node, executor = tester
     images, infos, jpegs = [], [], []
-    # Reliable readers (the camera publishes reliable): every frame arrives.
+    # Reliable readers, as the camera publishes (keep last 5: a loaded machine can still
+    # overwrite a sample before this process takes it).
     node.create_subscription(Image, names.IMAGE, images.append, qos.CAMERA_PUBLISHER)
     node.create_subscription(CameraInfo, names.CAMERA_INFO, infos.append,
                              qos.CAMERA_PUBLISHER)
     node.create_subscription(CompressedImage, names.IMAGE + '/compressed', jpegs.append,
                              qos.CAMERA_PUBLISHER)
-    assert spin(executor, lambda: len(images) >= 8 and len(jpegs) >= 8 and len(infos) >= 8,
-                60), f'{len(images)} images, {len(jpegs)} jpegs: {proc.poll()}'
+
+    def paired():
+        """Images whose camera_info (same stamp) has arrived: the two topics come in
+        either order, and a loaded machine may drop a sample of either (keep last 5)."""
+        info_stamps = [i.header.stamp for i in infos]
+        return [m for m in images if m.header.stamp in info_stamps]
+
+    assert spin(executor, lambda: len(paired()) >= 8 and len(jpegs) >= 8, 60), \
+        f'{len(images)} images, {len(infos)} infos, {len(jpegs)} jpegs: {proc.poll()}'
     image = images[-1]
     assert (image.width, image.height, image.encoding) == (WIDTH, HEIGHT, 'bgr8')
     assert image.header.frame_id == 'webcam_optical' and image.step == 3 * WIDTH
     pixels = np.frombuffer(bytes(image.data), np.uint8).reshape(HEIGHT, WIDTH, 3)
-    # Blue levels cycle through the folder in name order (loop).
+    # Blue levels cycle through the folder in name order (loop): each frame is the next
+    # file's, but for a rare sample lost under load.
     blues = [int(np.frombuffer(bytes(m.data[:1]), np.uint8)[0]) for m in images]
-    start = blues.index(10)
-    assert blues[start:start + 4] == [10, 30, 50, 10]
+    assert set(blues) == {10, 30, 50}
+    steps = [(b - a) // 20 % 3 for a, b in zip(blues, blues[1:])]
+    assert steps.count(1) >= len(steps) - 2, blues
     assert tuple(pixels[150, 200]) == (0, 255, 255)
-    # Each frame's camera_info has its stamp (the two topics arrive in either order).
-    info_stamps = [i.header.stamp for i in infos]
-    paired = [m for m in images if m.header.stamp in info_stamps]
-    assert len(paired) >= len(images) - 2
-    info = [i for i in infos if i.header.stamp == paired[-1].header.stamp]
+    info = [i for i in infos if i.header.stamp == paired()[-1].header.stamp]
     assert info and info[0].header.frame_id == 'webcam_optical'
     assert (info[0].width, info[0].height) == (WIDTH, HEIGHT)
     assert info[0].k[0] == pytest.approx(554.256) and info[0].distortion_model == 'plumb_bob'

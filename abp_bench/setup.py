@@ -32,6 +32,7 @@ setup(
             'soak = abp_bench.soak:main',
             'transport_benchmark = abp_bench.transport_benchmark:main',
             'make_cubes = abp_bench.make_cubes:main',
+            'episode_report = abp_bench.episode_report:main',
         ],
     },
 )

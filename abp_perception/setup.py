@@ -21,6 +21,7 @@ setup(
             'artag_detector = abp_perception.artag_detector_node:main',
             'aspect_matcher = abp_perception.aspect_matcher_node:main',
             'calibrate_camera = abp_perception.calibrate_camera_cli:main',
+            'camera = abp_perception.camera_node:main',
         ],
     },
 )

@@ -25,6 +25,7 @@
 #   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
 #   --namespace NS       run every node under the namespace /NS (topics, services, actions)
 #   --record DIR         record the graph's topics to a rosbag2 (MCAP) bag in DIR
+#   --record-images      with --record: also record camera/image_raw (large; for episode_report)
 #   --result-json FILE   write the result (object, posterior, actions, time, ground truth)
 #   --speedup X          sim time speed-up (default 10)
 #   --max-actions N      action budget (default 30)
@@ -42,8 +43,8 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 tables=""
-respawn=1; serve=0
-usage() { sed -n '2,38p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+respawn=1; serve=0; record_images=false
+usage() { sed -n '2,39p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -59,6 +60,7 @@ while [ $# -gt 0 ]; do
     --seed) seed="${2:?--seed needs a value}"; shift 2 ;;
     --params) params="${2:?--params needs a file}"; shift 2 ;;
     --record) record="${2:?--record needs a directory}"; shift 2 ;;
+    --record-images) record_images=true; shift ;;
     --result-json) result_json="${2:?--result-json needs a file}"; shift 2 ;;
     --speedup) speedup="${2:?--speedup needs a value}"; shift 2 ;;
     --max-actions) max_actions="${2:?--max-actions needs a value}"; shift 2 ;;
@@ -222,7 +224,7 @@ start_managed abp_skills skill_servers
 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
   start_managed abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
 if [ -n "$record" ]; then
-  start abp_bringup bag_recorder -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
+  start abp_bringup bag_recorder -p "record_images:=$record_images" -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
 fi
 
 node_list="$(IFS=,; echo "${managed[*]}")"

@@ -1,6 +1,7 @@
 """Parameter tables of the two perception nodes (ROS-free; the nodes declare them with
 `abp_common.parameters.declare_all`).
 
+`CAMERA_SPECS`: the `camera` node (frames from a device, video file or folder).
 `DETECTOR_SPECS`: the `artag_detector` node; `DETECTOR_PARAMETERS` are the ones a running
 detector is rebuilt from when they change. `MATCHER_SPECS`: the `aspect_matcher` node,
 after the model-set parameters it shares with the belief node
@@ -15,6 +16,36 @@ from .detector import DICTIONARY_NAMES
 IMAGE_TRANSPORTS = ('raw', 'compressed')
 # How the camera pose is timed: the joint state at the image stamp, or the newest one.
 JOINT_STATE_LOOKUPS = ('interpolate', 'latest')
+
+CAMERA_ENCODINGS = ('bgr8', 'mono8')
+
+CAMERA_SPECS = (
+    ParamSpec('source', STRING, '', 'Where frames come from: a V4L2 device (/dev/video0, or '
+              'its index 0), a video file, or a folder of images played in sorted name '
+              'order (frame_source.open_frame_source).', read_only=True),
+    ParamSpec('calibration_file', STRING, '', 'Camera calibration YAML (camera_calibration '
+              '/ camera_info_manager format) published as camera/camera_info; its image size '
+              "must be the frames'. Empty: camera_info with the frame size only (no "
+              'intrinsics: the tag detector then refuses the frames).', read_only=True),
+    ParamSpec('rate', DOUBLE, 10.0, 'Frames published per second (a file or folder is '
+              'played at this rate, whatever it was recorded at).', (0.1, 240.0),
+              read_only=True),
+    ParamSpec('frame_id', STRING, 'camera_optical_frame', 'header.frame_id of the images '
+              'and camera_info (the tag detector maps it with frame_map).', read_only=True),
+    ParamSpec('encoding', STRING, 'bgr8', 'Encoding of camera/image_raw.', read_only=True,
+              choices=CAMERA_ENCODINGS),
+    ParamSpec('loop', BOOL, False, 'Play a video file or folder again from the start at its '
+              'end (else publishing stops there).', read_only=True),
+    ParamSpec('publish_compressed', BOOL, False, 'Also publish JPEG frames on '
+              "camera/image_raw/compressed (image_transport's compressed transport).",
+              read_only=True),
+    ParamSpec('jpeg_quality', INT, 90, 'JPEG quality of the compressed frames.', (1, 100),
+              read_only=True),
+    ParamSpec('image_width', INT, 0, 'Capture width asked of a device, px (0: its default; '
+              'with image_height).', (0, 10000), read_only=True),
+    ParamSpec('image_height', INT, 0, 'Capture height asked of a device, px (0: its '
+              'default; with image_width).', (0, 10000), read_only=True),
+)
 
 DETECTOR_SPECS = (
     ParamSpec('dictionary', STRING, 'DICT_4X4_50', 'ArUco dictionary (OpenCV name).',
@@ -108,5 +139,6 @@ def matcher_options(values):
                 distance_samples=values['distance_samples'])
 
 
-__all__ = ['DETECTOR_PARAMETERS', 'DETECTOR_SPECS', 'IMAGE_TRANSPORTS', 'JOINT_STATE_LOOKUPS',
-           'MATCHER_PARAMETERS', 'MATCHER_SPECS', 'matcher_options']
+__all__ = ['CAMERA_ENCODINGS', 'CAMERA_SPECS', 'DETECTOR_PARAMETERS', 'DETECTOR_SPECS',
+           'IMAGE_TRANSPORTS', 'JOINT_STATE_LOOKUPS', 'MATCHER_PARAMETERS', 'MATCHER_SPECS',
+           'matcher_options']

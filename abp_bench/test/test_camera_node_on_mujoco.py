@@ -29,7 +29,7 @@ from abp_description import camera_yaml_path  # noqa: E402
 from abp_description.frames import rot_z  # noqa: E402
 from abp_description.kinematics import RobotKinematics, look_at_world  # noqa: E402
 from abp_msgs.msg import AspectObservation, Belief, TagDetectionArray  # noqa: E402
-from abp_perception.camera_info_file import calibration_yaml, load_calibration  # noqa: E402
+from abp_perception import camera_calibration_file  # noqa: E402
 from abp_sim_bridge.mujoco_scene import CubeSpec  # noqa: E402
 from abp_sim_bridge.mujoco_world import MujocoSettings, MujocoWorld  # noqa: E402
 
@@ -74,7 +74,8 @@ def test_mujoco_frames_through_camera_detector_matcher_and_belief(
     expected = cube.aspect_of(models.faces[model], state)
     assert expected[0] == (2 if yaw_deg % 90 == 0 else 3)
     calibration = tmp_path / 'camera.yaml'
-    calibration.write_text(calibration_yaml(load_calibration(camera_yaml_path())))
+    camera_calibration_file.save(str(calibration),
+                                 camera_calibration_file.load(camera_yaml_path()))
 
     model_args = ['-p', 'model_set:=robot', '-p', f'seed:={SEED}']
     ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',

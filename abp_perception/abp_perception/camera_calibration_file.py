@@ -49,6 +49,13 @@ class CameraCalibration:
     def size(self) -> tuple[int, int]:
         return self.width, self.height
 
+    def fill(self, msg):
+        """Set the calibration fields of a sensor_msgs/CameraInfo (or anything with its
+        fields); the header is the caller's. Returns `msg`."""
+        for name, value in self.camera_info_fields().items():
+            setattr(msg, name, value)
+        return msg
+
     def camera_info_fields(self) -> dict:
         """Keyword arguments for sensor_msgs.msg.CameraInfo (header excluded)."""
         return {'width': self.width, 'height': self.height,
@@ -158,5 +165,15 @@ def load(path: str) -> CameraCalibration:
     return CameraCalibration(width, height, str(doc.get('camera_name', '')), K, D, R, P, model)
 
 
-__all__ = ['CalibrationFileError', 'CameraCalibration', 'load', 'make', 'projection_matrix',
-           'save', 'to_dict']
+def check_image_size(calibration, size, source='the frames'):
+    """Raise CalibrationFileError when `size` (width, height) is not the calibration's."""
+    width, height = size
+    if (width, height) != calibration.size:
+        raise CalibrationFileError(
+            f'the calibration is for {calibration.width}x{calibration.height} px but '
+            f'{source} are {width}x{height} px: calibrate at this size, or capture at '
+            'the calibrated one')
+
+
+__all__ = ['CalibrationFileError', 'CameraCalibration', 'check_image_size', 'load', 'make',
+           'projection_matrix', 'save', 'to_dict']

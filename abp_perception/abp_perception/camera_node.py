@@ -10,7 +10,7 @@ all with `abp_common.qos.CAMERA_PUBLISHER` (as the sim bridge publishes its came
 
 Frames come from a V4L2 device, a video file or a folder of images (`source`; the
 plain module `frame_source`), the calibration from a camera_calibration YAML
-(`camera_info_file`). Configure opens the source and reads its first frame, loads the
+(`camera_calibration_file`). Configure opens the source and reads its first frame, loads the
 calibration and checks that both are of one image size: a missing device, an unreadable
 file, an empty folder or a calibration of another size fails configure with the reason
 (with autostart: `configuration error: ...`, exit code 2). Parameters:
@@ -28,7 +28,8 @@ from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 
-from .camera_info_file import CalibrationFileError, check_image_size, load_calibration
+from .camera_calibration_file import CalibrationFileError, check_image_size
+from .camera_calibration_file import load as load_calibration
 from .frame_source import FrameSourceError, jpeg_payload, open_frame_source
 from .node_parameters import CAMERA_SPECS
 

@@ -61,7 +61,7 @@ def bad_sources(tmp_path):
                           'the calibration is for 640x480 px but the frames of '
                           f'{small} are 320x240 px'),
         'missing calibration': (str(small), str(tmp_path / 'none.yaml'),
-                                f"calibration file {tmp_path / 'none.yaml'} does not exist"),
+                                f"{tmp_path / 'none.yaml'}: cannot read"),
     }
 
 

@@ -128,8 +128,8 @@ def test_the_sim_camera_calibration_loads_and_round_trips(tmp_path):
     ('image_width: 640\nimage_height: 480\n', 'camera_matrix is missing'),
     ('image_width: 640\nimage_height: 480\ncamera_matrix: {data: [1, 2]}\n',
      'camera_matrix needs 9 finite numbers, has 2'),
-    ('image_width: 640\nimage_height: 480\ncamera_matrix: {data: [0,0,1,0,0,1,0,0,1]}\n',
-     'focal lengths must be > 0'),
+    ('image_width: 640\nimage_height: 480\ncamera_matrix: {data: [0,0,1,0,0,1,0,0,1]}\n'
+     'distortion_coefficients: {data: []}\n', 'focal lengths must be > 0'),
     ('image_width: 640\nimage_height: 480\ncamera_matrix: {data: [5,0,1,0,5,1,0,0,1]}\n'
      'distortion_model: fisheye9\n', "distortion_model 'fisheye9' is not one of"),
     ('image_width: 640\nimage_height: 480\ncamera_matrix: {data: [5,0,1,0,5,1,0,0,1]}\n'

@@ -43,14 +43,19 @@ def descriptor(spec, note=''):
 
 def _declare(node, spec, value, described):
     """declare_parameter, taking an integer given for a double (`-p speedup:=10`, YAML
-    `alpha: 1`: users write numbers) as that double rather than refusing its type."""
+    `alpha: 1`: users write numbers) as that double, and for a string (`-p source:=0`) as
+    its digits, rather than refusing its type."""
     try:
         return node.declare_parameter(spec.name, value, described)
     except rclpy.exceptions.InvalidParameterTypeException:
-        if spec.kind not in (DOUBLE, DOUBLE_ARRAY):
+        if spec.kind not in (DOUBLE, DOUBLE_ARRAY, STRING):
             raise
         given = _given_value(node, spec.name)
-        if spec.kind == DOUBLE and isinstance(given, int) and not isinstance(given, bool):
+        integer = isinstance(given, int) and not isinstance(given, bool)
+        if spec.kind == STRING and integer:
+            # `-p source:=0` (a device index) arrives as an integer: the string it means.
+            as_double = str(given)
+        elif spec.kind == DOUBLE and integer:
             as_double = float(given)
         elif (spec.kind == DOUBLE_ARRAY and given is not None and len(given)
               and all(isinstance(v, int) and not isinstance(v, bool) for v in given)):

@@ -19,7 +19,6 @@ file, an empty folder or a calibration of another size fails configure with the 
 
 import sys
 
-from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
 from abp_common import names, qos
@@ -45,7 +44,6 @@ class CameraNode(ManagedNode):
         self.source = None
 
     def configure(self):
-        self._accept_device_index()
         values = declare_all(self, CAMERA_SPECS)
         self.frame_id = values['frame_id']
         self.encoding = values['encoding']
@@ -84,14 +82,6 @@ class CameraNode(ManagedNode):
             + (f", calibration {values['calibration_file']}" if calibration else '')
             + (', looping' if self.source.loop else '')
             + (', also JPEG compressed' if self.publish_compressed else ''))
-
-    def _accept_device_index(self):
-        # `-p source:=0` arrives as an integer: take it as the device index it means
-        # rather than refusing the type.
-        overrides = getattr(self, '_parameter_overrides', None)
-        given = overrides.get('source') if isinstance(overrides, dict) else None
-        if given is not None and given.type_ == Parameter.Type.INTEGER:
-            overrides['source'] = Parameter('source', value=str(given.value))
 
     def activate(self):
         self._image_pub = self.create_publisher(Image, names.IMAGE, qos.CAMERA_PUBLISHER)

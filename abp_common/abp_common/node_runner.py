@@ -19,6 +19,7 @@ configure() is reported the same way (code 2); with `autostart:=false` it spins
 unconfigured until a lifecycle manager drives it.
 """
 
+import signal
 import sys
 
 import rclpy
@@ -36,6 +37,11 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     `config_errors`: extra exception types that mean a bad configuration (besides
     ValueError and rclpy's InvalidParameterValueException). `make_executor` is called
     after rclpy.init (an executor needs the context)."""
+    # rclpy's own SIGINT handler shuts the context down, which ends the spin; Python's
+    # default handler would then also raise KeyboardInterrupt wherever the main thread
+    # is, even inside a finalizer (`Exception ignored in: Future.__del__`), where nothing
+    # can catch it. The spin's end is enough: the interrupt itself is not raised.
+    signal.signal(signal.SIGINT, _interrupt_ends_the_spin)
     rclpy.init(args=args)
     node = None
     try:
@@ -65,6 +71,11 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _interrupt_ends_the_spin(_signum, _frame):
+    """SIGINT, after rclpy's handler has shut the context down (so the spin ends)."""
+    rclpy.try_shutdown()
 
 
 __all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'run_node']

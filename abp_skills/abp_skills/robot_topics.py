@@ -174,18 +174,21 @@ class RobotCommands:
 
     # -- the controllers ---------------------------------------------------------------
     def stop_motion(self):
-        """Zero base velocity and hold every controller where its joints are: a one-point
-        hold at the measured position on each controller's topic, which replaces whatever
-        trajectory runs, and a cancel of each running goal (on which the controller holds
-        too), so that the stop does not depend on the action server answering."""
+        """Zero base velocity and hold every controller where its joints are. A controller
+        running a goal of ours gets a cancel: Jazzy's controller then holds the position
+        it measures itself. Every other controller gets a one-point hold at the position
+        measured here: a hold sent by topic to a running goal's controller would pull
+        the joints back to where /joint_states last showed them (seen: 0.6 s of motion
+        when the joint states reached this node late)."""
         for _ in range(3):
             self.stop_base()
-        for goal in self._goals.values():
-            goal.cancel()
+        cancelled = {name for name, goal in self._goals.items() if goal.cancel()}
         q = self.node.state.latest_joints()
         if q is None:       # no joint state ever: nothing to hold at (and nothing moved)
             return
         for name, joints in CONTROLLERS.items():
+            if name in cancelled:
+                continue
             idx = [self.node.kin.joint_index(j) for j in joints]
             msg = JointTrajectory(joint_names=list(joints))
             msg.points.append(JointTrajectoryPoint(
@@ -334,12 +337,17 @@ class _Goal:
         self._cancel = False
 
     def cancel(self):
-        """Cancel the goal, now or as soon as the controller has accepted it."""
+        """Cancel the goal, now or as soon as the controller has accepted it. True when
+        the goal runs or may still run (its controller stops on the cancel), False when
+        it has ended (its controller holds already)."""
         with self._lock:
             self._cancel = True
             handle = self._handle
-        if handle is not None and self.outcome is None:
+        if self.outcome is not None:
+            return False
+        if handle is not None:
             self._calls.run(handle.cancel_goal_async)
+        return True
 
     def on_response(self, future):
         handle = future.result()

@@ -136,17 +136,23 @@ class GoalMonitor:
             return self._end(SUCCESSFUL, 'Goal successfully reached!', 'succeeded')
         late = t - end
         if goal.goal_time_tolerance > 0 and late > goal.goal_time_tolerance:
-            where = self._describe(outside, error, goal.goal_position)
+            too_far = (goal.goal_position > 0) & (error > goal.goal_position)
+            # Name what is out: the position where it is, else the velocity.
+            where = (self._describe(too_far, error, goal.goal_position) if np.any(too_far)
+                     else self._describe(outside, speed, goal.goal_velocity, 'velocity'))
             return self._end(GOAL_TOLERANCE_VIOLATED,
                              f'Aborted due to goal_time_tolerance exceeding by '
                              f'{late - goal.goal_time_tolerance:.6f} seconds: {where}',
                              'aborted')
         return None
 
-    def _describe(self, bad, error, limit):
+    def _describe(self, bad, value, limit, quantity='position'):
         i = int(np.flatnonzero(bad)[0])
-        return (f'{self.joint_names[i]} {error[i]:.4f} from its desired position '
-                f'(tolerance {limit[i]:.4f})')
+        if quantity == 'position':
+            return (f'{self.joint_names[i]} {value[i]:.4f} from its desired position '
+                    f'(tolerance {limit[i]:.4f})')
+        return (f'{self.joint_names[i]} still moving at {value[i]:.4f} '
+                f'(velocity tolerance {limit[i]:.4f})')
 
     def _end(self, code, text, status):
         goal, self._goal = self._goal, None

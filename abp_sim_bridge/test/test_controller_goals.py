@@ -61,3 +61,13 @@ def test_preemption_cancel_and_erased_tolerances():
 def test_tolerances_for_unknown_joints_are_refused():
     with pytest.raises(ValueError, match='does not have'):
         GoalMonitor(JOINTS).start('g', 1.0, goal_tolerance=[('z', 0.1)])
+
+
+def test_a_goal_late_only_by_its_velocity_names_the_velocity():
+    m = GoalMonitor(JOINTS)
+    m.start('moving', end_time=2.0, goal_tolerance=[('a', 0.05)], goal_time_tolerance=0.5)
+    # Within the position tolerance but still moving past the stopped-velocity tolerance.
+    end = m.update(2.6, [0.99, 0.0], [0.3, 0.0], [1.0, 0.0], trajectory_end=2.0)
+    assert (end.status, end.error_code) == ('aborted', GOAL_TOLERANCE_VIOLATED)
+    assert 'a still moving at 0.3000' in end.error_string, end.error_string
+    assert 'from its desired position' not in end.error_string

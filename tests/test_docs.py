@@ -5,6 +5,11 @@
   its headings (GitHub's anchors).
 - The README stays a five-minute read (at most 120 lines) and names the two commands, which
   exist and are executable; CI runs the README's test command.
+- Every installed executable (``install/<pkg>/lib/<pkg>/<exe>``, ``ros2 run <pkg> <exe>``)
+  and module (``python -m <pkg>.<module>``) the README and docs/ name is one a package
+  defines, so a command copied from the docs runs.
+- docs/USAGE.md's table of ``start_graph.sh`` options lists exactly the options the script
+  parses.
 - docs/img/make_results_plots.py draws every plot docs/RESULTS.md shows from the figures
   RESULTS.md records.
 
@@ -131,9 +136,60 @@ def test_the_readme_is_short_and_names_the_two_commands():
     assert 'scripts/test.sh' in ci
 
 
-def test_the_readme_and_the_docs_link_the_results():
+def test_the_readme_links_the_results_and_the_benchmarks():
     assert 'docs/RESULTS.md' in links(README)
     assert 'docs/BENCHMARKS.md' in links(README)
+
+
+INSTALLED = re.compile(r'install/(abp_\w+)/lib/\1/(\w+)')
+ROS2_RUN = re.compile(r'ros2 run (abp_\w+) (\w+)')
+MODULE = re.compile(r'python -m (abp_\w+)\.(\w+)')
+
+
+def entry_points(package):
+    """The console scripts ``package``'s setup.py declares."""
+    setup = (REPO / package / 'setup.py').read_text(encoding='utf-8')
+    return set(re.findall(r"'(\w+)\s*=\s*[\w.]+:\w+'", setup))
+
+
+def named_commands():
+    """(doc, kind, package, name) for each executable or module the README and docs name."""
+    found = set()
+    for path in [README, *sorted((REPO / 'docs').glob('*.md'))]:
+        text = path.read_text(encoding='utf-8')
+        doc = str(path.relative_to(REPO))
+        found.update((doc, 'executable', *m) for m in INSTALLED.findall(text))
+        found.update((doc, 'executable', *m) for m in ROS2_RUN.findall(text))
+        found.update((doc, 'module', *m) for m in MODULE.findall(text))
+    return sorted(found)
+
+
+def test_every_executable_and_module_the_docs_name_exists():
+    named = named_commands()
+    assert any(kind == 'module' for _, kind, _, _ in named)      # the patterns still match
+    assert len([n for n in named if n[1] == 'executable']) > 10
+    missing = []
+    for doc, kind, package, name in named:
+        if kind == 'executable':
+            exists = (REPO / package / 'setup.py').is_file() and name in entry_points(package)
+        else:
+            exists = (REPO / package / package / f'{name}.py').is_file()
+        if not exists:
+            missing.append(f'{doc}: {kind} {package} {name}')
+    assert missing == []
+
+
+def test_the_usage_table_lists_exactly_the_options_start_graph_parses():
+    usage = (REPO / 'docs' / 'USAGE.md').read_text(encoding='utf-8')
+    table = usage.split('### Options', 1)[1].split('\n#', 1)[0]
+    options = {o for line in table.splitlines() if line.startswith('| `--')
+               for o in re.findall(r'`(--[a-z-]+)', line)}
+    assert len(options) > 15
+    script = (REPO / 'scripts' / 'start_graph.sh').read_text(encoding='utf-8')
+    # The script's argument loop names each option as a case label: "--world)" or "--world|".
+    parsed = set(re.findall(r'(--[a-z-]+)[)|]', script))
+    assert sorted(options - parsed) == []
+    assert sorted(parsed - options - {'--help'}) == []        # and the table lists them all
 
 
 def test_the_results_plots_are_drawn_from_the_recorded_figures(tmp_path):

@@ -3,7 +3,7 @@
     perception_benchmark [--frames 120] [--noise-frames 60] [--match-trials 600]
                          [--distance-trials 200] [--robot-trials 300] [--seed 0]
                          [--threads 1]
-                         [--update-doc docs/BENCHMARKS.md]
+                         [--update-doc /tmp/perception.md]   # tables as a Markdown section
 
 Scenes come from the sim bridge's renderer (``abp_bench.scenes``): a random model
 of the full 1470-model set (n_tags = 7) in a random one of its 48 states, turned by a

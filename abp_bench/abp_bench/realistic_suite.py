@@ -2,7 +2,7 @@
 plain OpenCV on the same frames.
 
     perception_benchmark --suite realistic [--realistic-frames 150] [--seed 0]
-                         [--update-doc docs/BENCHMARKS.md]
+                         [--update-doc /tmp/perception.md]   # tables as a Markdown section
 
 Frames: the benchmark's random ARcube scenes (``perception_benchmark.random_scene``: a
 random model of the full set in a random state, 25-45 deg elevation, anywhere in the

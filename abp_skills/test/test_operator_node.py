@@ -113,8 +113,8 @@ def test_a_person_answers_every_action(ros_processes, tester, spin, answering, c
     node, executor = tester
     start_operator(ros_processes, person, skill_timeout=600.0)
     actions = clients(node)
-    for client in actions.values():
-        assert answering(executor, client, 60.0), f'{client._action_name} does not answer'
+    for skill, client in actions.items():
+        assert answering(executor, client, 60.0), f'the {skill} server does not answer'
 
     feasible = call_service(executor, node.create_client(
         CheckFeasibility, 'abp/skills/check_feasibility'), CheckFeasibility.Request(), 60.0)

@@ -63,6 +63,45 @@ def render_frames(folder, faces, count=3):
     return ' '.join(f'{v:.6f}' for v in (*optical[:3, 3], *rpy))
 
 
+def executable(package, name):
+    from ament_index_python.packages import get_package_prefix
+    return os.path.join(get_package_prefix(package), 'lib', package, name)
+
+
+def test_fixed_camera_pose_puts_the_tags_on_the_cube(ros_processes, tester, spin, tmp_path):
+    """The detector with --camera-pose's parameter and no joint states: the tags of the
+    MuJoCo frames land in base_link on the cube (centre 0.40, 0, 0.05), as with the
+    robot's forward kinematics (abp_bench/test/test_camera_node_on_mujoco.py)."""
+    from abp_common import names, qos
+    from abp_msgs.msg import TagDetectionArray
+
+    models = robot_set(seed=SEED)
+    model = int(np.flatnonzero(models.mass == 0)[5])
+    pose = render_frames(tmp_path / 'frames', tuple(int(t) for t in models.faces[model]))
+    calibration = tmp_path / 'camera.yaml'
+    camera_calibration_file.save(str(calibration),
+                                 camera_calibration_file.load(camera_yaml_path()))
+    node, executor = tester
+    detections = []
+    node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
+                             qos.RELIABLE)
+    values = ','.join(pose.split())
+    ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',
+                         '-p', f'fixed_camera_pose:=[{values}]'])
+    ros_processes.start([executable('abp_perception', 'camera'), '--ros-args',
+                         '-p', f"source:={tmp_path / 'frames'}",
+                         '-p', f'calibration_file:={calibration}',
+                         '-p', 'frame_id:=webcam_optical', '-p', 'loop:=true'])
+    assert spin(executor, lambda: any(d.detections for d in detections), 120), \
+        f'{len(detections)} detection messages, none with tags'
+    det = [d for d in detections if d.detections][-1]
+    assert det.header.frame_id == 'base_link' and det.camera_frame_id == 'webcam_optical'
+    assert len(det.detections) >= 2
+    for d in det.detections:
+        p = d.pose.pose.position
+        assert np.linalg.norm([p.x - 0.40, p.y, p.z - 0.05]) < 0.09, (p, pose)
+
+
 def test_start_graph_with_a_person_answering_on_a_terminal(ros_processes, tmp_path):
     models = robot_set(seed=SEED)
     model = int(np.flatnonzero(models.mass == 0)[5])

@@ -26,6 +26,7 @@ setup(
             'push_server = abp_skills.skills_node:push_main',
             'lift_server = abp_skills.skills_node:lift_main',
             'flip_server = abp_skills.skills_node:flip_main',
+            'operator_skills = abp_skills.operator_node:main',
         ],
     },
 )

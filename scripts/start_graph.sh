@@ -37,6 +37,16 @@
 #                        error, or died 3 times within 10 s of starting)
 #   --serve              start the graph and keep it up without sending a goal, until Ctrl-C
 #                        or SIGTERM (for a driver that sends its own goals, e.g. abp_bench.soak)
+#   --operator person    no robot, no sim: a person carries out each action, asked on this
+#                        terminal (operator_skills instead of skill_servers; docs/OPERATOR.md);
+#                        needs --camera and --calibration
+#   --camera SRC         with --operator person: the camera node's source, a V4L2 device
+#                        (/dev/video0), a video file or a folder of images (played in a loop)
+#   --calibration FILE   with --camera: its camera_calibration YAML (calibrate_camera writes one)
+#   --camera-pose "X Y Z ROLL PITCH YAW"   with --camera: where the camera stands, m and deg,
+#                        camera x forward, z up, positive pitch looks down, in a frame on the
+#                        table below it (x towards the cube)           (default "0 0 0.4 0 45 0")
+#   --operator-terminal T  the operator's terminal device (default /dev/tty)
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
@@ -44,7 +54,8 @@ robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; re
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 tables=""
 respawn=1; serve=0; record_images=false
-usage() { sed -n '2,39p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
+usage() { sed -n '2,50p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -67,6 +78,11 @@ while [ $# -gt 0 ]; do
     --timeout) timeout="${2:?--timeout needs a value}"; shift 2 ;;
     --log-dir) log_dir="${2:?--log-dir needs a directory}"; shift 2 ;;
     --namespace) namespace="${2?--namespace needs a value}"; shift 2 ;;
+    --operator) operator="${2:?--operator needs a value}"; shift 2 ;;
+    --camera) camera="${2:?--camera needs a device or file}"; shift 2 ;;
+    --calibration) calibration="${2:?--calibration needs a file}"; shift 2 ;;
+    --camera-pose) camera_pose="${2:?--camera-pose needs X Y Z ROLL PITCH YAW}"; shift 2 ;;
+    --operator-terminal) operator_terminal="${2:?--operator-terminal needs a device}"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     *) die "unknown option $1 (see --help)" ;;
   esac
@@ -78,6 +94,24 @@ done
 [[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
 [ -z "$record" ] || [ ! -e "$record" ] || die "--record $record exists: rosbag2 never overwrites a bag"
+if [ -n "$operator" ]; then
+  [ "$operator" = person ] || die "--operator must be person"
+  [ "$robot" = 0 ] || die "--operator person runs without the robot: leave out --robot"
+  [ -n "$camera" ] && [ -n "$calibration" ] || die "--operator person needs --camera and --calibration"
+  [ -f "$calibration" ] || die "--calibration file $calibration not found"
+  [[ "$camera" =~ ^/dev/ || "$camera" =~ ^[0-9]+$ || -e "$camera" ]] || die "--camera $camera: no such device, file or folder"
+  read -r -a pose_values <<< "$camera_pose"
+  [ "${#pose_values[@]}" = 6 ] || die "--camera-pose needs 6 numbers: X Y Z ROLL PITCH YAW"
+  pose_param=""   # a YAML list of doubles (a 0 alone would make it a mixed list)
+  for v in "${pose_values[@]}"; do
+    [[ "$v" =~ ^-?[0-9]+([.][0-9]*)?$ ]] || die "--camera-pose: $v is not a number"
+    [[ "$v" == *.* ]] || v="$v."; [[ "$v" == *. ]] && v="${v}0"; pose_param+="${pose_param:+,}$v"
+  done
+  calibration="$(cd "$(dirname "$calibration")" && pwd)/$(basename "$calibration")"
+  [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && camera="$(cd "$(dirname "$camera")" && pwd)/$(basename "$camera")"
+elif [ -n "$camera$calibration" ]; then
+  die "--camera and --calibration go with --operator person"
+fi
 namespace="${namespace#/}"; namespace="${namespace%/}"
 [ -z "$namespace" ] || [[ "$namespace" =~ ^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$ ]] \
   || die "--namespace must be a ROS namespace such as robot1"
@@ -194,6 +228,7 @@ start() {
   local package="$1" executable="$2"; shift 2
   local sim_time=(-p "use_sim_time:=true")
   [ "$robot" = 1 ] && sim_time=()
+  [ -n "$operator" ] && sim_time=()
   [ "$package/$executable" = abp_sim_bridge/sim_bridge ] && sim_time=()
   [ "$package/$executable" = abp_bringup/lifecycle_manager ] && sim_time=()
   local ros_args=(--ros-args --params-file "$config" --params-file "$model_params")
@@ -206,7 +241,24 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ "$robot" = 1 ] && echo robot || echo "sim ($world world)" ) graph${namespace:+ under /$namespace}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
+if [ "$operator" = person ]; then
+  # A camera that does not move and a person for the skills (docs/OPERATOR.md): no sim
+  # bridge, no robot_state; the detector takes the camera pose from --camera-pose, not
+  # from joint states.
+  echo "[start_graph] operator graph: camera $camera, a person on $operator_terminal"
+  loop=false; [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && loop=true
+  start_managed abp_perception camera -p "source:=$camera" -p "calibration_file:=$calibration" \
+    -p "loop:=$loop"
+  start_managed abp_perception artag_detector -p "fixed_camera_pose:=[$pose_param]"
+  start_managed abp_perception aspect_matcher
+  start_managed abp_belief belief
+  start_managed abp_skills operator_skills -p "terminal:=$operator_terminal"
+  OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+    start_managed abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
+fi
+# The sim or the robot (not indented, so that this block stays as it was).
+if [ -z "$operator" ]; then
 if [ "$robot" = 0 ]; then
   start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
     -p "cube_seed:=$seed" -p "speedup:=$speedup"
@@ -223,6 +275,7 @@ start_managed abp_skills skill_servers
 # the other nodes for 2 cores made first decisions at |M| = 1470 take up to 430 ms.
 OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
   start_managed abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
+fi  # [ -z "$operator" ]
 if [ -n "$record" ]; then
   start abp_bringup bag_recorder -p "record_images:=$record_images" -p "output:=$(mkdir -p "$(dirname "$record")" && cd "$(dirname "$record")" && pwd)/$(basename "$record")"
 fi

@@ -59,6 +59,7 @@ from abp_msgs.msg import TagDetection, TagDetectionArray
 from .camera_model import (
     FrameMap,
     UnknownFrame,
+    fixed_camera_pose,
     intrinsics_from_camera_info,
     joints_moving_frame,
     rectified_to_camera,
@@ -99,6 +100,7 @@ class ArtagDetectorNode(ManagedNode):
                              f'{self.kinematics.urdf_path}')
         self.frames = FrameMap(self._values['frame_map'], self.kinematics.has_frame,
                                self.camera_frame)
+        self.fixed_pose = fixed_camera_pose(self._values['fixed_camera_pose'])
         self.rectified = self._values['image_is_rectified']
         self._rectified_pose = None          # rectified frame in the camera frame (stereo R)
         self.joint_lookup = self._values['joint_state_lookup']
@@ -125,10 +127,12 @@ class ArtagDetectorNode(ManagedNode):
         self.get_logger().info(
             f"detecting {self._values['dictionary']} tags of {self._config['marker_size']} m "
             f'in {self.image_transport} images on {self.resolve_topic_name(self.image_topic)}; '
-            f'poses in {self.base_frame} via forward kinematics of the camera frame '
-            f'(default {self.camera_frame}'
-            + (f', mapped: {self.frames.mapping}' if self.frames.mapping else '')
-            + f') at the joint state {self._lookup_text()}'
+            + (f'poses in {self.base_frame} from the fixed camera pose '
+               f'{list(self._values["fixed_camera_pose"])}' if self.fixed_pose is not None else
+               f'poses in {self.base_frame} via forward kinematics of the camera frame '
+               f'(default {self.camera_frame}'
+               + (f', mapped: {self.frames.mapping}' if self.frames.mapping else '')
+               + f') at the joint state {self._lookup_text()}')
             + ('; rectified images (P, no distortion)' if self.rectified else ''))
 
     def _lookup_text(self):
@@ -260,7 +264,8 @@ class ArtagDetectorNode(ManagedNode):
 
     def _must_wait(self, header, frame):
         """Whether the joint states that move `frame` do not reach the image stamp yet."""
-        if self.joint_lookup != 'interpolate' or self._joints is None:
+        if self.joint_lookup != 'interpolate' or self._joints is None or \
+                self.fixed_pose is not None:
             return False
         t_ns = stamp_ns(header.stamp)
         newest = self.joint_buffer.newest_of(self._joints_of(frame))
@@ -285,6 +290,8 @@ class ArtagDetectorNode(ManagedNode):
             self.health.reject(self.image_topic, rejected.kind, rejected.detail)
 
     def _pose_at(self, frame, header):
+        if self.fixed_pose is not None:
+            return self.fixed_pose
         return None if self._joints is None else self._camera_pose(frame, header.stamp)
 
     def _camera_pose(self, frame, stamp):
@@ -320,7 +327,10 @@ class ArtagDetectorNode(ManagedNode):
                                              f'{self.resolve_topic_name(names.CAMERA_INFO)} yet')
 
     def _urdf_frame(self, what, frame_id):
-        """The URDF frame of a header's frame_id (frame_map, the URDF, camera_frame)."""
+        """The URDF frame of a header's frame_id (frame_map, the URDF, camera_frame); with
+        a fixed camera pose, any frame_id is that camera's."""
+        if self.fixed_pose is not None:
+            return frame_id or self.camera_frame
         try:
             return self.frames.resolve(frame_id)
         except UnknownFrame as error:

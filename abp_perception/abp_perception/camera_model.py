@@ -21,6 +21,29 @@ from dataclasses import dataclass
 import numpy as np
 
 FRAME_MAP_PARAMETER = 'frame_map'
+# The optical frame (z forward, x right, y down) in a camera body frame (REP 103: x
+# forward, y left, z up).
+OPTICAL_IN_BODY = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def fixed_camera_pose(values):
+    """The 4x4 pose of a fixed camera's optical frame in the base frame, from the
+    `fixed_camera_pose` parameter [x, y, z, roll, pitch, yaw] (m, deg) of the camera body
+    (x forward, y left, z up; positive pitch looks down), or None for [] (the pose
+    comes from the joint states). Raises ValueError for another length or a non-finite
+    value."""
+    values = [] if values is None else [float(v) for v in values]
+    if not values:
+        return None
+    if len(values) != 6 or not np.all(np.isfinite(values)):
+        raise ValueError('fixed_camera_pose must be [x, y, z, roll, pitch, yaw] (m, deg) '
+                         f'of the camera in the base frame, or []; got {values}')
+    from scipy.spatial.transform import Rotation
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler('xyz', values[3:], degrees=True).as_matrix() \
+        @ OPTICAL_IN_BODY
+    pose[:3, 3] = values[:3]
+    return pose
 
 
 class FrameMapError(ValueError):

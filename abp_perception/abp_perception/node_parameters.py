@@ -9,7 +9,15 @@ after the model-set parameters it shares with the belief node
 time.
 """
 
-from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, STRING_ARRAY, ParamSpec
+from abp_common.param_spec import (
+    BOOL,
+    DOUBLE,
+    DOUBLE_ARRAY,
+    INT,
+    STRING,
+    STRING_ARRAY,
+    ParamSpec,
+)
 
 from .detector import DICTIONARY_NAMES
 
@@ -67,6 +75,11 @@ DETECTOR_SPECS = (
               "'driver_frame:urdf_frame' entries, e.g. "
               "['camera_color_optical_frame:camera_optical_frame']. A frame_id neither "
               'mapped nor in the URDF is refused (camera_model.FrameMap).', read_only=True),
+    ParamSpec('fixed_camera_pose', DOUBLE_ARRAY, None, 'A camera that does not move (no '
+              'robot): [x, y, z, roll, pitch, yaw] (m, deg) of the camera body (x forward, '
+              'y left, z up; positive pitch looks down) in base_frame, used for every image '
+              'whatever its frame_id, instead of joint_states. [] = from joint_states.',
+              read_only=True),
     ParamSpec('image_is_rectified', BOOL, False, 'true: the images are rectified (an '
               "image_proc 'image_rect' topic): intrinsics from camera_info's P (left 3x3), "
               'its D ignored, poses rotated back by R; false: raw images, K and D.',

@@ -23,7 +23,9 @@ STACK_MODULES = ('rclpy', 'numpy', 'scipy', 'yaml', 'cv2', 'pinocchio', 'ruckig'
 GRAPH_EXECUTABLES = {('abp_sim_bridge', 'sim_bridge'), ('abp_perception', 'artag_detector'),
                      ('abp_perception', 'aspect_matcher'), ('abp_belief', 'belief'),
                      ('abp_skills', 'skill_servers'), ('abp_planner', 'planner'),
-                     ('abp_bringup', 'lifecycle_manager'), ('abp_bringup', 'recognize')}
+                     ('abp_bringup', 'lifecycle_manager'), ('abp_bringup', 'recognize'),
+                     ('abp_description', 'robot_state'), ('abp_perception', 'camera'),
+                     ('abp_skills', 'operator_skills')}
 
 
 def entry_points():

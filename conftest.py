@@ -172,6 +172,23 @@ def rclpy_context():
 
 
 @pytest.fixture
+def main_in_process(capsys):
+    """`run(main, *ros_args)`: a node's `main()` run in this process (the code path of its
+    executable, without the process start-up) -> (exit code, stderr). For configuration
+    errors, which end main() before any spin; SIGINT's handler (run_node sets its own)
+    is restored."""
+    def run(main, *ros_args):
+        previous = signal.getsignal(signal.SIGINT)
+        capsys.readouterr()
+        try:
+            code = main(['node', '--ros-args', *ros_args])
+        finally:
+            signal.signal(signal.SIGINT, previous)
+        return code, capsys.readouterr().err
+    return run
+
+
+@pytest.fixture
 def tester(rclpy_context):
     """(node, executor): a test's own node in `rclpy_context` on a single-threaded
     executor, destroyed at teardown."""

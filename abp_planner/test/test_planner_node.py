@@ -5,7 +5,6 @@ real skill actions and publishes sampled aspect observations."""
 import os
 import pathlib
 import signal
-import subprocess
 import sys
 import time
 
@@ -70,14 +69,31 @@ def start_belief(ros_processes):
     return ros_processes.start([executable('abp_belief', 'belief'), *PARAMS])
 
 
-def start_graph(ros_processes, true_model, fail_action='', infeasible='', planner_params=()):
-    """Belief, planner and the model world; returns their processes by name."""
+# A participant that announces a 3 s lease (Fast DDS's default: 20 s) and renews it every
+# 0.5 s: once its process is killed, the other participants drop its endpoints after 3 s,
+# the same way they drop any killed node's, only sooner.
+SHORT_LEASE_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="short_lease" is_default_profile="true">
+    <rtps><builtin><discovery_config>
+      <leaseDuration><sec>3</sec></leaseDuration>
+      <leaseAnnouncement><nanosec>500000000</nanosec></leaseAnnouncement>
+    </discovery_config></builtin></rtps>
+  </participant>
+</profiles>
+"""
+
+
+def start_graph(ros_processes, true_model, fail_action='', infeasible='', planner_params=(),
+                world_env=None):
+    """Belief, planner and the model world (in `world_env`, default this environment);
+    returns their processes by name. The tests wait for the world as events: its
+    observations reaching the belief node (belief_has_observed)."""
     belief = start_belief(ros_processes)
     planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
                                    '-p', 'observation_timeout:=5.0', *planner_params])
     world = ros_processes.start([sys.executable, str(WORLD), 'robot', str(SEED),
-                                 str(true_model), fail_action, infeasible])
-    ros_processes.wait_for_line(world, 'READY', timeout=30)
+                                 str(true_model), fail_action, infeasible], env=world_env)
     return {'belief': belief, 'planner': planner, 'world': world}
 
 
@@ -223,11 +239,11 @@ def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client,
 
 
 def past_the_first_action(ros_processes, client, spin, answering, threshold=0.99,
-                          planner_params=()):
+                          planner_params=(), world_env=None):
     """The graph (hidden model 11) and the result future of a goal that has executed its
     first action."""
     node, executor, action_client, executed, plans = client
-    graph = start_graph(ros_processes, 11, planner_params=planner_params)
+    graph = start_graph(ros_processes, 11, planner_params=planner_params, world_env=world_env)
     result = send_goal(executor, action_client, spin, answering,
                        Recognize.Goal(planner_mode='abp', max_actions=30,
                                       posterior_threshold=threshold)).get_result_async()
@@ -272,17 +288,23 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
 
 
 def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client, spin,
-                                                          answering):
+                                                          answering, tmp_path):
     node, executor, action_client, executed, plans = client
+    # The world's participant has a short lease: the planner learns it is gone from DDS,
+    # as it learns of any killed node, without waiting out the default 20 s lease.
+    profile = tmp_path / 'short_lease.xml'
+    profile.write_text(SHORT_LEASE_PROFILE)
+    world_env = {**os.environ, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
     graph, result = past_the_first_action(ros_processes, client, spin, answering,
-                                          planner_params=['-p', 'node_return_timeout:=5.0'])
+                                          planner_params=['-p', 'node_return_timeout:=2.0'],
+                                          world_env=world_env)
     # The world serves the skills and the observations: both are gone for good.
     os.killpg(graph['world'].pid, signal.SIGKILL)
     assert spin(executor, result.done, 180), 'recognition did not end'
     response = result.result()
     assert response.status == GoalStatus.STATUS_ABORTED
     reason = response.result.reason
-    assert 'gone and not back within 5 s' in reason
+    assert 'gone and not back within 2 s' in reason
     # The world served both; DDS may list its observation publisher gone before its
     # action servers (seen under load), and the reason names what is gone at its deadline.
     assert 'skill servers (abp/skills/' in reason or \
@@ -440,8 +462,11 @@ def test_cancel_stops_the_loop(ros_processes, client, spin, answering):
     assert result.result().result.reason == 'cancelled'
 
 
-def test_bad_planner_mode_is_refused():
-    result = subprocess.run([executable('abp_planner', 'planner'), '--ros-args', '-p',
-                             'planner_mode:=greedy'], capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2
-    assert 'planner_mode' in result.stderr and 'Traceback' not in result.stderr
+def test_bad_planner_mode_is_refused(main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    from abp_planner.planner_node import main
+    code, stderr = main_in_process(main, '-p', 'planner_mode:=greedy')
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and 'planner_mode' in stderr
+    assert 'Traceback' not in stderr

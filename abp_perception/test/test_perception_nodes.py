@@ -3,8 +3,8 @@ parameters are refused; compressed images (image_transport's `compressed` topic)
 the same detections as raw ones. A rendered image in, the right aspect observation out:
 abp_bench/test/test_perception_nodes_on_scenes.py."""
 
+import importlib
 import os
-import subprocess
 import time
 
 import cv2
@@ -310,12 +310,14 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),
 ])
-def test_bad_parameters_are_refused_clearly(name, override, expected):
-    result = subprocess.run([executable(name), '--ros-args', '-p', override],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2, result.stderr
-    assert 'configuration error' in result.stderr and expected in result.stderr
-    assert 'Traceback' not in result.stderr
+def test_bad_parameters_are_refused_clearly(name, override, expected, main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    main = importlib.import_module(f'abp_perception.{name}_node').main
+    code, stderr = main_in_process(main, '-p', override)
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and expected in stderr
+    assert 'Traceback' not in stderr
 
 
 def test_nodes_under_a_namespace_use_its_topics(ros_processes, tester, spin):

@@ -5,7 +5,6 @@ processes, and complete ORBIT and LIFT runs."""
 
 import math
 import os
-import subprocess
 import threading
 import time
 import uuid
@@ -426,12 +425,14 @@ def test_an_aborted_manual_skill_brings_the_arms_home(ros_processes, tester):
     ('timeout:=-3.0', 'timeout'),
     ('orbit_min_radius:=2.0', 'orbit_min_radius'),
 ])
-def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([executable('push_server'), '--ros-args', '-p', override],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2, result.stderr
-    assert 'configuration error' in result.stderr and expected in result.stderr
-    assert 'Traceback' not in result.stderr
+def test_bad_parameters_are_refused_clearly(override, expected, main_in_process):
+    """The push_server executable's main() in this process (the exit code of a process
+    start-up is checked once, in test_sim_bridge_node.py)."""
+    from abp_skills.skills_node import push_main
+    code, stderr = main_in_process(push_main, '-p', override)
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and expected in stderr
+    assert 'Traceback' not in stderr
 
 
 def test_a_base_command_of_the_other_type_is_refused_with_both_types_named(ros_processes,

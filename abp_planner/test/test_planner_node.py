@@ -14,8 +14,10 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from action_msgs.msg import GoalStatus  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.time import Time  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
@@ -53,6 +55,17 @@ class Received(list):
 
     def matched(self):
         return self.subscription.get_publisher_count() >= 1
+
+
+def rosout_of(node, name):
+    """The list the /rosout messages of the node `name` go to (what it logs, as ROS
+    messages; rclpy publishes them reliable and transient local)."""
+    lines = []
+    node.create_subscription(
+        Log, '/rosout', lambda m: m.name == name and lines.append(m.msg),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    return lines
 
 
 def undecided_belief(models, step, stamp_ns):
@@ -271,6 +284,7 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     # Seen in the bad-input sweep under load: the sweep's belief publisher, discovered
     # mid-episode, was taken for a respawned belief node; the episode paused and re-observed.
     node, executor, action_client, executed, plans = client
+    said = rosout_of(node, 'planner')
     graph, result = past_the_first_action(ros_processes, client, spin, answering, 0.999)
     extra = node.create_publisher(Belief, '/abp/belief', LATCHED)
     # Matched with the planner's subscription: the planner has discovered it, and its next
@@ -281,7 +295,8 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     assert spin(executor, result.done, 120), 'recognition did not finish'
     response = result.result()
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
-    log = ''.join(ros_processes.wait_for_line(graph['planner'], 'recognition finished', 30))
+    assert spin(executor, lambda: any('recognition finished' in line for line in said), 30)
+    log = '\n'.join(said)
     # From the first action on: the extra publisher appeared after it.
     after_first = log[log.index('action 1:'):]
     assert 'episode paused' not in after_first and 're-observing' not in after_first, log
@@ -367,11 +382,12 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
         return response
 
     node.create_service(ResetBelief, '/abp/reset_belief', on_reset)
+    said = rosout_of(node, 'planner')
     # Perception is there (the planner pauses an episode without it); it need not speak.
     observations = node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                          RELIABLE)
-    planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
-                                   '-p', 'observation_timeout:=5.0'])
+    ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
+                         '-p', 'observation_timeout:=5.0'])
     assert answering(executor, action_client, 30), 'no /abp/recognize server'
     assert spin(executor, lambda: beliefs.get_subscription_count() >= 1 and plans.matched()
                 and observations.get_subscription_count() >= 1, 30), \
@@ -380,10 +396,9 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
     assert spin(executor, send.done, 10) and send.result().accepted
     assert spin(executor, lambda: resets, 30), 'the planner did not reset the belief'
     beliefs.publish(undecided_belief(models, 1, node.get_clock().now().nanoseconds))
-    assert spin(executor, lambda: plans, 30), \
-        ''.join(ros_processes.wait_for_line(planner, 'recognition finished', 30))
-    log = ''.join(ros_processes.wait_for_line(planner, 'stamp_future', 10))
-    assert 'rejected input on /abp/belief (stamp_future)' in log, log
+    assert spin(executor, lambda: plans, 30), '\n'.join(said)
+    assert spin(executor, lambda: any('rejected input on /abp/belief (stamp_future)' in line
+                                      for line in said), 10), '\n'.join(said)
 
 
 def test_the_reset_belief_and_the_first_correction_are_taken_in_order(monkeypatch):

@@ -172,6 +172,30 @@ def rclpy_context():
 
 
 @pytest.fixture
+def main_in_process(capsys):
+    """`run(main, *ros_args)`: a node's `main()` run in this process (the code path of its
+    executable, without the process start-up) -> (exit code, stderr). For configuration
+    errors, which end main() before any spin; a main() that spins instead (the value was
+    taken) is ended after `timeout` s by shutting rclpy down, and returns 0. SIGINT's
+    handler (run_node sets its own) is restored."""
+    import threading
+
+    def run(main, *ros_args, timeout=30.0):
+        rclpy = pytest.importorskip('rclpy')
+        previous = signal.getsignal(signal.SIGINT)
+        capsys.readouterr()
+        stop = threading.Timer(timeout, rclpy.try_shutdown)
+        stop.start()
+        try:
+            code = main(['node', '--ros-args', *ros_args])
+        finally:
+            stop.cancel()
+            signal.signal(signal.SIGINT, previous)
+        return code, capsys.readouterr().err
+    return run
+
+
+@pytest.fixture
 def tester(rclpy_context):
     """(node, executor): a test's own node in `rclpy_context` on a single-threaded
     executor, destroyed at teardown."""

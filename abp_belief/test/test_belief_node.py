@@ -2,7 +2,6 @@
 published belief equals the plain filter's, reset works, bad parameters are refused."""
 
 import os
-import subprocess
 
 import numpy as np
 import pytest
@@ -207,9 +206,11 @@ def test_reset_belief_after_a_restarted_simulation_is_not_stamped_in_the_future(
     ('model_set:=bogus', 'model_set'),
     ('p_miss:=0.0', 'p_miss'),
 ])
-def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([belief_executable(), '--ros-args', '-p', override],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2, result.stderr
-    assert 'configuration error' in result.stderr and expected in result.stderr
-    assert 'Traceback' not in result.stderr
+def test_bad_parameters_are_refused_clearly(override, expected, main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    from abp_belief.belief_node import main
+    code, stderr = main_in_process(main, '-p', override)
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and expected in stderr
+    assert 'Traceback' not in stderr

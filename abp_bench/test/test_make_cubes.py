@@ -1,9 +1,11 @@
-"""make_cubes round trip (issue 35): every page of the robot set, read back from its
-300 dpi PNG with OpenCV's ArUco detector, shows the six tags of its model, and the net
+"""make_cubes round trip (issue 35): a printed page of every mass variant, read back from
+its 300 dpi PNG with OpenCV's ArUco detector, shows the six tags of its model, and the net
 folded along its fold lines is the model's cube with every tag turned as the sim's
-renderers draw it; the PDF is one page of the right size; the scale bar is 10 cm.
+renderers draw it; the PDF is one page of the right size; the scale bar is 10 cm. Every
+page of the robot set has the same net (cube_net.cross_squares) with its own tags: each
+page's layout places the model's tags on the squares, turned as on the printed pages.
 
-In-process: make_cubes.main writes the files, the checks read only the files.
+In-process: make_cubes.main writes the files, the round-trip checks read only the files.
 """
 
 import re
@@ -23,13 +25,17 @@ CUBE_M, TAG_M = 0.05, 0.04        # the 10 cm default does not fit on one sheet 
 DPI = 300
 PX_PER_MM = DPI / 25.4
 ROBOT = population.robot_set()
+# The printed pages: one model of the robot set in its seven mass variants (uniform and a
+# weight mark on each face). Writing all 30 pages took ~15 s; the other models' pages
+# differ only in which tag sits on which square (test_every_robot_model_page_...).
+PRINTED = [f'c0-1-2-4-5-3/{mass}' for mass in ('u', 'm+x', 'm-x', 'm+y', 'm-y', 'm+z', 'm-z')]
 
 
 @pytest.fixture(scope='module')
 def robot_pages(tmp_path_factory):
     out = tmp_path_factory.mktemp('cubes')
-    assert make_cubes.main(['--model-set', 'robot', '--out', str(out), '--cube-size',
-                            str(CUBE_M), '--tag-size', str(TAG_M), '--charuco']) == 0
+    assert make_cubes.main([*PRINTED, '--out', str(out), '--cube-size', str(CUBE_M),
+                            '--tag-size', str(TAG_M), '--charuco']) == 0
     return out
 
 
@@ -78,9 +84,11 @@ def fold_net(ids, corners):
     return cells, frames
 
 
-def test_every_robot_model_page_detects_and_folds_into_its_cube(robot_pages):
-    assert len(ROBOT.names) == 30
-    for name, faces, mass in zip(ROBOT.names, ROBOT.faces, ROBOT.mass):
+def test_printed_pages_detect_and_fold_into_their_cubes(robot_pages):
+    printed = [(name, faces) for name, faces in zip(ROBOT.names, ROBOT.faces)
+               if name in PRINTED]
+    assert len(printed) == len(PRINTED)
+    for name, faces in printed:
         image = cv2.imread(str(robot_pages / f'{make_cubes.file_stem(name)}.png'),
                            cv2.IMREAD_GRAYSCALE)
         assert image is not None, name
@@ -112,6 +120,31 @@ def test_every_robot_model_page_detects_and_folds_into_its_cube(robot_pages):
         for q in rotations:
             assert np.allclose(q, rotations[0], atol=1e-9), f'{name}: tags turned wrongly'
         assert np.isclose(np.linalg.det(rotations[0]), 1.0)
+
+
+def test_every_robot_model_page_places_its_tags_as_the_printed_pages():
+    """Each of the 30 pages --model-set robot asks for: its six tags on the squares of their
+    body faces, turned as on the printed pages (read back above), the weight mark on the
+    heavy face's square."""
+    args = make_cubes.build_parser().parse_args(['--model-set', 'robot', '--out', 'unused'])
+    models = make_cubes._models(args)
+    assert [name for name, _, _ in models] == list(ROBOT.names) and len(models) == 30
+    dictionary = cv2.aruco.DICT_4X4_50
+    printed = cube_net.cube_page(PRINTED[0], *cube_net.parse_model_name(PRINTED[0]),
+                                 cube_mm=CUBE_M * 1000, tag_mm=TAG_M * 1000)
+    turns = {sq.face: (sq.origin, sq.quarter_turns) for sq in printed.squares}
+    for name, faces, mass in models:
+        page = cube_net.cube_page(name, faces, mass, cube_mm=CUBE_M * 1000, tag_mm=TAG_M * 1000)
+        assert sorted(sq.face for sq in page.squares) == list(range(6)), name
+        for sq in page.squares:
+            assert sq.tag_id == faces[sq.face], name
+            assert (sq.origin, sq.quarter_turns) == turns[sq.face], name
+            assert np.array_equal(sq.modules, np.rot90(
+                cube_net.marker_modules(dictionary, sq.tag_id), sq.quarter_turns)), name
+        assert page.heavy_face == (None if mass == 0 else mass - 1), name
+        if page.heavy_face is not None:
+            heavy = next(sq for sq in page.squares if sq.face == page.heavy_face)
+            assert heavy.origin[0] < page.weight_mark[0] < heavy.origin[0] + page.cube_mm
 
 
 def _png_dpi(path):

@@ -6,7 +6,6 @@ from the installed executable. The MuJoCo frames through detector, matcher and b
 abp_bench/test/test_camera_node_on_mujoco.py."""
 
 import os
-import subprocess
 
 import cv2
 import numpy as np
@@ -15,8 +14,10 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.lifecycle import TransitionCallbackReturn  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
@@ -96,13 +97,15 @@ def test_an_integer_source_is_a_device_index(rclpy_context):
 
 
 @pytest.mark.parametrize('case', ('missing device', 'unreadable file', 'size mismatch'))
-def test_the_executable_exits_with_a_configuration_error(bad_sources, case):
+def test_the_executable_exits_with_a_configuration_error(bad_sources, case, main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    from abp_perception.camera_node import main
     source, calibration, expected = bad_sources[case]
-    result = subprocess.run([executable(), '--ros-args', '-p', f'source:={source}',
-                             '-p', f'calibration_file:={calibration}'],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == CONFIGURATION_ERROR_EXIT_CODE, result.stderr
-    assert f'[camera] configuration error: {expected}' in result.stderr
+    code, stderr = main_in_process(main, '-p', f'source:={source}',
+                                   '-p', f'calibration_file:={calibration}')
+    assert code == CONFIGURATION_ERROR_EXIT_CODE, stderr
+    assert f'[camera] configuration error: {expected}' in stderr
 
 
 def test_a_folder_is_published_with_camera_info_and_jpeg(ros_processes, tester, spin,
@@ -159,6 +162,13 @@ def test_a_file_without_loop_ends_after_its_frames(ros_processes, tester, spin, 
     proc = ros_processes.start([
         executable(), '--ros-args', '-p', f'source:={folder}', '-p', 'encoding:=mono8',
         '-p', 'rate:=20.0'])
-    lines = ros_processes.wait_for_line(proc, f'end of {folder}: 3 frames published', 60)
-    assert any('no calibration_file' in line for line in lines)
+    # What the node says, read as its /rosout messages.
+    node, executor = tester
+    logs = []
+    node.create_subscription(Log, '/rosout', lambda m: m.name == 'camera' and logs.append(m.msg),
+                             QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                                        durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    assert spin(executor, lambda: any(f'end of {folder}: 3 frames published' in line
+                                      for line in logs), 60), logs
+    assert any('no calibration_file' in line for line in logs)
     assert proc.poll() is None               # the node stays up, as a driver does

@@ -1,10 +1,11 @@
-"""The perception nodes over real DDS: bad input is skipped with a clear log line; bad
-parameters are refused; compressed images (image_transport's `compressed` topic) give
+"""The perception nodes over real DDS: bad input is skipped, counted in /diagnostics and
+logged clearly (both read as ROS messages: /diagnostics and /rosout); bad parameters are
+refused; compressed images (image_transport's `compressed` topic) give
 the same detections as raw ones. A rendered image in, the right aspect observation out:
 abp_bench/test/test_perception_nodes_on_scenes.py."""
 
+import importlib
 import os
-import subprocess
 import time
 
 import cv2
@@ -20,14 +21,24 @@ if not hasattr(pytest.importorskip('abp_msgs.msg'), 'AspectObservation'):
 
 from builtin_interfaces.msg import Time  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image  # noqa: E402
 
 from abp_common import names, qos  # noqa: E402
 from abp_common.health import DIAGNOSTICS  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_msgs.msg import TagDetectionArray  # noqa: E402
+
+# /diagnostics every 0.2 s (default 1 s): the tests wait for its counts; every rejected
+# input logged (by default one per kind and topic every 5 s, as the count goes on).
+FAST_DIAGNOSTICS = ['--ros-args', '-p', 'diagnostics_period:=0.2',
+                    '-p', 'reject_log_period:=0.0']
+# As rclpy's /rosout publisher: reliable, transient local.
+ROSOUT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 def executable(name):
@@ -61,39 +72,71 @@ def compressed_msg(payload, fmt, frame_id, stamp):
     return msg
 
 
-def publish_until_printed(ros_processes, proc, executor, spin, publish, text, timeout=60.0):
-    """Publish until `proc` prints a line with `text`: large best-effort samples can be
-    lost (right after discovery, or on a loaded machine), so one publish may not do."""
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        publish()
-        spin(executor, lambda: False, 0.1)
-        try:
-            return ros_processes.wait_for_line(proc, text, 0.3)
-        except AssertionError:
-            assert proc.poll() is None, 'detector died'
-    return None
+class Rejections:
+    """What the detector says of the input it rejects, as ROS messages: its counts by topic
+    and kind on /diagnostics (abp_common.health: `rejected <topic> <kind>`) and its log
+    lines on /rosout."""
+
+    def __init__(self, node, name='artag_detector'):
+        self.name = name
+        self.counts = {}
+        self.logs = []
+        node.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10)
+        node.create_subscription(Log, '/rosout', self._on_log, ROSOUT)
+
+    def _on_diagnostics(self, msg):
+        for status in msg.status:
+            if status.name.endswith(f'{self.name}: health'):
+                self.counts.update({kv.key: int(kv.value) for kv in status.values
+                                    if kv.key.startswith('rejected ')})
+
+    def _on_log(self, msg):
+        if msg.name == self.name:
+            self.logs.append(msg.msg)
+
+    def publish_until_rejected(self, executor, spin, publish, topic, kind, text,
+                               timeout=60.0):
+        """Publish until /diagnostics counts one more `kind` rejected on `topic` (large
+        best-effort samples can be lost, right after discovery or on a loaded machine,
+        so one publish may not do); returns the log line with `text` that said why."""
+        key = f'rejected {topic} {kind}'
+        before = self.counts.get(key, 0)
+
+        def said():
+            return next((line for line in self.logs if text in line), None)
+
+        def done():
+            return self.counts.get(key, 0) > before and said() is not None
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and not done():
+            publish()
+            spin(executor, done, 0.3)
+        assert self.counts.get(key, 0) > before, f'no {kind} rejection counted on {topic}'
+        assert said() is not None, f'no log line with {text!r}: {self.logs}'
+        return said()
 
 
 def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
     cam = camera_intrinsics()
-    proc = ros_processes.start([executable('artag_detector')])
+    proc = ros_processes.start([executable('artag_detector'), *FAST_DIAGNOSTICS])
     node, executor = tester
     image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
     info_pub = node.create_publisher(CameraInfo, names.CAMERA_INFO, qos.SENSOR_DATA)
     detections = []
     node.create_subscription(TagDetectionArray, names.TAG_DETECTIONS, detections.append,
                              qos.RELIABLE)
+    rejections = Rejections(node)
     assert spin(executor, lambda: image_pub.get_subscription_count() > 0, 30)
     gray = np.full((cam.height, cam.width), 128, np.uint8)
 
-    def publish_until_logged(publish, text):
-        return publish_until_printed(ros_processes, proc, executor, spin, publish, text)
+    def publish_until_logged(publish, kind, text):
+        return rejections.publish_until_rejected(executor, spin, publish, names.IMAGE, kind,
+                                                 text)
 
     # No camera_info yet: skipped with a warning.
     assert publish_until_logged(
         lambda: image_pub.publish(image_msg(gray, cam.frame_id, Time(sec=1))),
-        'no valid camera_info')
+        'no_camera_info', 'no valid camera_info')
 
     # Unsupported encoding (a depth image): skipped with an error naming it.
     def bad_encoding():
@@ -102,7 +145,7 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
                                     cam.frame_id, Time(sec=2), encoding='32FC1',
                                     bytes_per_pixel=4))
 
-    assert publish_until_logged(bad_encoding, "unsupported image encoding '32FC1'")
+    assert publish_until_logged(bad_encoding, 'encoding', "unsupported image encoding '32FC1'")
 
     # An image of another size than camera_info's: rejected naming both, and counted.
     def scaled():
@@ -110,10 +153,10 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
         image_pub.publish(image_msg(np.full((2 * cam.height, 2 * cam.width), 128, np.uint8),
                                     cam.frame_id, Time(sec=2)))
 
-    lines = publish_until_logged(
-        scaled, f'image is {2 * cam.width}x{2 * cam.height} px but the camera intrinsics '
-        f'(camera_info) are for {cam.width}x{cam.height} px')
-    assert lines and 'size on this topic so far' in lines[-1]
+    line = publish_until_logged(
+        scaled, 'size', f'image is {2 * cam.width}x{2 * cam.height} px but the camera '
+        f'intrinsics (camera_info) are for {cam.width}x{cam.height} px')
+    assert 'size on this topic so far' in line
     assert detections == []
     # A good image without joint states: published in the camera frame, still running.
     deadline = time.monotonic() + 60.0
@@ -130,7 +173,7 @@ def test_bad_input_is_skipped_with_a_clear_message(ros_processes, tester, spin):
 def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_processes, tester,
                                                                      spin):
     cam = camera_intrinsics()
-    proc = ros_processes.start([executable('artag_detector'), '--ros-args',
+    proc = ros_processes.start([executable('artag_detector'), *FAST_DIAGNOSTICS,
                                 '-p', 'image_transport:=compressed'])
     node, executor = tester
     topic = names.IMAGE + '/compressed'
@@ -154,21 +197,23 @@ def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_process
         info_pub.publish(camera_info_msg(cam))
         image_pub.publish(compressed_msg(payload, fmt, cam.frame_id, Time(sec=sec)))
 
-    def publish_until_logged(publish, text):
-        return publish_until_printed(ros_processes, proc, executor, spin, publish, text)
+    rejections = Rejections(node)
+
+    def publish_until_logged(publish, kind, text):
+        return rejections.publish_until_rejected(executor, spin, publish, topic, kind, text)
 
     # A corrupt payload (a truncated JPEG): rejected with a warning and counted.
-    lines = publish_until_logged(
+    line = publish_until_logged(
         lambda: publish(jpeg.tobytes()[:5000], 'rgb8; jpeg compressed bgr8', 1),
-        'is corrupt or truncated')
-    assert lines and 'decode on this topic so far' in lines[-1]
+        'decode', 'is corrupt or truncated')
+    assert 'decode on this topic so far' in line
     # Garbage that is not JPEG at all, and a frame of another size than camera_info's.
     assert publish_until_logged(
         lambda: publish(bytes(range(256)) * 40, 'mono8; jpeg compressed mono8', 2),
-        'is not JPEG data')
+        'decode', 'is not JPEG data')
     assert publish_until_logged(
         lambda: publish(big.tobytes(), 'mono8; png compressed mono8', 3),
-        f'image is {2 * cam.width}x{2 * cam.height} px but the camera intrinsics')
+        'size', f'image is {2 * cam.width}x{2 * cam.height} px but the camera intrinsics')
     assert detections == [] and proc.poll() is None
 
     # A good JPEG frame: both tags, where they are (camera frame: no joint states).
@@ -189,7 +234,7 @@ def test_compressed_images_give_detections_and_bad_ones_are_rejected(ros_process
 
 def test_frames_between_full_searches_are_tracked_and_counted(ros_processes, tester, spin):
     cam = camera_intrinsics()
-    proc = ros_processes.start([executable('artag_detector'), '--ros-args',
+    proc = ros_processes.start([executable('artag_detector'), *FAST_DIAGNOSTICS,
                                 '-p', 'full_frame_every:=4'])
     node, executor = tester
     image_pub = node.create_publisher(Image, names.IMAGE, qos.SENSOR_DATA)
@@ -253,7 +298,7 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
     cam = camera_intrinsics()
     driver_frame = 'camera_color_optical_frame'
     proc = ros_processes.start([
-        executable('artag_detector'), '--ros-args',
+        executable('artag_detector'), *FAST_DIAGNOSTICS,
         '-p', f"frame_map:=['{driver_frame}:camera_optical_frame']",
         '-p', 'image_is_rectified:=true'])
     node, executor = tester
@@ -281,9 +326,9 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
                                     bytes_per_pixel=2))
 
     # A frame neither mapped nor in the URDF: refused, naming the parameter to set.
-    assert publish_until_printed(ros_processes, proc, executor, spin,
-                                 lambda: publish('usb_cam', 1),
-                                 "frame 'usb_cam' is not a frame of the URDF: map it")
+    assert Rejections(node).publish_until_rejected(
+        executor, spin, lambda: publish('usb_cam', 1), names.IMAGE, 'frame',
+        "frame 'usb_cam' is not a frame of the URDF: map it")
     assert detections == []
     deadline = time.monotonic() + 60.0
     while time.monotonic() < deadline and not detections:
@@ -310,12 +355,14 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
     ('aspect_matcher', 'model_set:=bogus', 'model_set'),
     ('aspect_matcher', 'model_file:=/nonexistent/models.npz', 'models.npz'),
 ])
-def test_bad_parameters_are_refused_clearly(name, override, expected):
-    result = subprocess.run([executable(name), '--ros-args', '-p', override],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2, result.stderr
-    assert 'configuration error' in result.stderr and expected in result.stderr
-    assert 'Traceback' not in result.stderr
+def test_bad_parameters_are_refused_clearly(name, override, expected, main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    main = importlib.import_module(f'abp_perception.{name}_node').main
+    code, stderr = main_in_process(main, '-p', override)
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and expected in stderr
+    assert 'Traceback' not in stderr
 
 
 def test_nodes_under_a_namespace_use_its_topics(ros_processes, tester, spin):

@@ -5,7 +5,6 @@ real skill actions and publishes sampled aspect observations."""
 import os
 import pathlib
 import signal
-import subprocess
 import sys
 import time
 
@@ -15,8 +14,10 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from action_msgs.msg import GoalStatus  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from rclpy.time import Time  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
@@ -56,6 +57,17 @@ class Received(list):
         return self.subscription.get_publisher_count() >= 1
 
 
+def rosout_of(node, name):
+    """The list the /rosout messages of the node `name` go to (what it logs, as ROS
+    messages; rclpy publishes them reliable and transient local)."""
+    lines = []
+    node.create_subscription(
+        Log, '/rosout', lambda m: m.name == name and lines.append(m.msg),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                   durability=DurabilityPolicy.TRANSIENT_LOCAL))
+    return lines
+
+
 def undecided_belief(models, step, stamp_ns):
     """A belief of a stand-in belief node: two models at 0.5 each, so the planner plans."""
     msg = Belief(step=step, total_models=models.num_models,
@@ -70,14 +82,31 @@ def start_belief(ros_processes):
     return ros_processes.start([executable('abp_belief', 'belief'), *PARAMS])
 
 
-def start_graph(ros_processes, true_model, fail_action='', infeasible='', planner_params=()):
-    """Belief, planner and the model world; returns their processes by name."""
+# A participant that announces a 3 s lease (Fast DDS's default: 20 s) and renews it every
+# 0.5 s: once its process is killed, the other participants drop its endpoints after 3 s,
+# the same way they drop any killed node's, only sooner.
+SHORT_LEASE_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<profiles xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <participant profile_name="short_lease" is_default_profile="true">
+    <rtps><builtin><discovery_config>
+      <leaseDuration><sec>3</sec></leaseDuration>
+      <leaseAnnouncement><nanosec>500000000</nanosec></leaseAnnouncement>
+    </discovery_config></builtin></rtps>
+  </participant>
+</profiles>
+"""
+
+
+def start_graph(ros_processes, true_model, fail_action='', infeasible='', planner_params=(),
+                world_env=None):
+    """Belief, planner and the model world (in `world_env`, default this environment);
+    returns their processes by name. The tests wait for the world as events: its
+    observations reaching the belief node (belief_has_observed)."""
     belief = start_belief(ros_processes)
     planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
                                    '-p', 'observation_timeout:=5.0', *planner_params])
     world = ros_processes.start([sys.executable, str(WORLD), 'robot', str(SEED),
-                                 str(true_model), fail_action, infeasible])
-    ros_processes.wait_for_line(world, 'READY', timeout=30)
+                                 str(true_model), fail_action, infeasible], env=world_env)
     return {'belief': belief, 'planner': planner, 'world': world}
 
 
@@ -223,11 +252,11 @@ def test_unidentified_goal_is_aborted_with_its_candidates(ros_processes, client,
 
 
 def past_the_first_action(ros_processes, client, spin, answering, threshold=0.99,
-                          planner_params=()):
+                          planner_params=(), world_env=None):
     """The graph (hidden model 11) and the result future of a goal that has executed its
     first action."""
     node, executor, action_client, executed, plans = client
-    graph = start_graph(ros_processes, 11, planner_params=planner_params)
+    graph = start_graph(ros_processes, 11, planner_params=planner_params, world_env=world_env)
     result = send_goal(executor, action_client, spin, answering,
                        Recognize.Goal(planner_mode='abp', max_actions=30,
                                       posterior_threshold=threshold)).get_result_async()
@@ -255,6 +284,7 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     # Seen in the bad-input sweep under load: the sweep's belief publisher, discovered
     # mid-episode, was taken for a respawned belief node; the episode paused and re-observed.
     node, executor, action_client, executed, plans = client
+    said = rosout_of(node, 'planner')
     graph, result = past_the_first_action(ros_processes, client, spin, answering, 0.999)
     extra = node.create_publisher(Belief, '/abp/belief', LATCHED)
     # Matched with the planner's subscription: the planner has discovered it, and its next
@@ -265,24 +295,31 @@ def test_another_node_publishing_beliefs_is_not_taken_for_a_respawned_belief_nod
     assert spin(executor, result.done, 120), 'recognition did not finish'
     response = result.result()
     assert response.status == GoalStatus.STATUS_SUCCEEDED, response.result.reason
-    log = ''.join(ros_processes.wait_for_line(graph['planner'], 'recognition finished', 30))
+    assert spin(executor, lambda: any('recognition finished' in line for line in said), 30)
+    log = '\n'.join(said)
     # From the first action on: the extra publisher appeared after it.
     after_first = log[log.index('action 1:'):]
     assert 'episode paused' not in after_first and 're-observing' not in after_first, log
 
 
 def test_a_node_that_stays_gone_aborts_the_goal_naming_it(ros_processes, client, spin,
-                                                          answering):
+                                                          answering, tmp_path):
     node, executor, action_client, executed, plans = client
+    # The world's participant has a short lease: the planner learns it is gone from DDS,
+    # as it learns of any killed node, without waiting out the default 20 s lease.
+    profile = tmp_path / 'short_lease.xml'
+    profile.write_text(SHORT_LEASE_PROFILE)
+    world_env = {**os.environ, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
     graph, result = past_the_first_action(ros_processes, client, spin, answering,
-                                          planner_params=['-p', 'node_return_timeout:=5.0'])
+                                          planner_params=['-p', 'node_return_timeout:=2.0'],
+                                          world_env=world_env)
     # The world serves the skills and the observations: both are gone for good.
     os.killpg(graph['world'].pid, signal.SIGKILL)
     assert spin(executor, result.done, 180), 'recognition did not end'
     response = result.result()
     assert response.status == GoalStatus.STATUS_ABORTED
     reason = response.result.reason
-    assert 'gone and not back within 5 s' in reason
+    assert 'gone and not back within 2 s' in reason
     # The world served both; DDS may list its observation publisher gone before its
     # action servers (seen under load), and the reason names what is gone at its deadline.
     assert 'skill servers (abp/skills/' in reason or \
@@ -345,11 +382,12 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
         return response
 
     node.create_service(ResetBelief, '/abp/reset_belief', on_reset)
+    said = rosout_of(node, 'planner')
     # Perception is there (the planner pauses an episode without it); it need not speak.
     observations = node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                          RELIABLE)
-    planner = ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
-                                   '-p', 'observation_timeout:=5.0'])
+    ros_processes.start([executable('abp_planner', 'planner'), *PARAMS,
+                         '-p', 'observation_timeout:=5.0'])
     assert answering(executor, action_client, 30), 'no /abp/recognize server'
     assert spin(executor, lambda: beliefs.get_subscription_count() >= 1 and plans.matched()
                 and observations.get_subscription_count() >= 1, 30), \
@@ -358,10 +396,9 @@ def test_a_reset_belief_refused_for_its_stamp_does_not_hold_the_episode_back(
     assert spin(executor, send.done, 10) and send.result().accepted
     assert spin(executor, lambda: resets, 30), 'the planner did not reset the belief'
     beliefs.publish(undecided_belief(models, 1, node.get_clock().now().nanoseconds))
-    assert spin(executor, lambda: plans, 30), \
-        ''.join(ros_processes.wait_for_line(planner, 'recognition finished', 30))
-    log = ''.join(ros_processes.wait_for_line(planner, 'stamp_future', 10))
-    assert 'rejected input on /abp/belief (stamp_future)' in log, log
+    assert spin(executor, lambda: plans, 30), '\n'.join(said)
+    assert spin(executor, lambda: any('rejected input on /abp/belief (stamp_future)' in line
+                                      for line in said), 10), '\n'.join(said)
 
 
 def test_the_reset_belief_and_the_first_correction_are_taken_in_order(monkeypatch):
@@ -440,8 +477,11 @@ def test_cancel_stops_the_loop(ros_processes, client, spin, answering):
     assert result.result().result.reason == 'cancelled'
 
 
-def test_bad_planner_mode_is_refused():
-    result = subprocess.run([executable('abp_planner', 'planner'), '--ros-args', '-p',
-                             'planner_mode:=greedy'], capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2
-    assert 'planner_mode' in result.stderr and 'Traceback' not in result.stderr
+def test_bad_planner_mode_is_refused(main_in_process):
+    """The executable's main() in this process (the exit code of a process start-up is
+    checked once, in test_sim_bridge_node.py)."""
+    from abp_planner.planner_node import main
+    code, stderr = main_in_process(main, '-p', 'planner_mode:=greedy')
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and 'planner_mode' in stderr
+    assert 'Traceback' not in stderr

@@ -5,7 +5,6 @@ processes, and complete ORBIT and LIFT runs."""
 
 import math
 import os
-import subprocess
 import threading
 import time
 import uuid
@@ -26,10 +25,13 @@ except ImportError:
 from action_msgs.msg import GoalStatus  # noqa: E402
 from geometry_msgs.msg import TwistStamped  # noqa: E402
 from nav_msgs.msg import Odometry  # noqa: E402
+from rcl_interfaces.msg import Log  # noqa: E402
 from rcl_interfaces.srv import SetParameters  # noqa: E402
 from rclpy.action import ActionClient  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
+from std_srvs.srv import Trigger  # noqa: E402
 from trajectory_msgs.msg import JointTrajectory  # noqa: E402
 from unique_identifier_msgs.msg import UUID  # noqa: E402
 
@@ -56,22 +58,26 @@ def executable(name):
 # Under load, DDS discovery can bring the servers their first /joint_states and /odom
 # seconds after they are ready: a goal waits for them (an event) instead of being refused.
 STATE_WAIT = {'state_wait_timeout': 30.0}
+# As rclpy's /rosout publisher: reliable, transient local.
+ROSOUT = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                    durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
-def start_server(ros_processes, name, **params):
+def start_server(ros_processes, tester, name, **params):
+    """Start the skills node `name` and wait until it is active (its lifecycle state, asked
+    over its endpoint_status service)."""
     values = {**FAST, **STATE_WAIT, **params}
     argv = [executable(name), '--ros-args']
     for key, value in values.items():
         argv += ['-p', f'{key}:={value}']
     proc = ros_processes.start(argv)
-    ros_processes.wait_for_line(proc, 'skills ready', 60)
+    tester.wait_active(name)
     return proc
 
 
 def start_robot(ros_processes, *args):
-    proc = ros_processes.start_python(FAKE_ROBOT, *args)
-    ros_processes.wait_for_line(proc, 'fake robot ready', 60)
-    return proc
+    """The fake robot; the tests wait for its /odom (an event) before they use it."""
+    return ros_processes.start_python(FAKE_ROBOT, *args)
 
 
 def hold_or_size(msg):
@@ -111,6 +117,10 @@ class Harness:
                 lambda msg, c=c: self.trajectories[c].append((time.monotonic(), hold_or_size(msg))),
                 RELIABLE)
         self.node.create_timer(0.2, self._publish_estimate)
+        self.logs = []                 # (node name, text) of every /rosout message
+        self._log_read = {}            # node name -> how many of its lines were awaited
+        self.node.create_subscription(Log, '/rosout',
+                                      lambda m: self.logs.append((m.name, m.msg)), ROSOUT)
 
     def _on_odom(self, msg):
         p = msg.pose.pose
@@ -176,6 +186,36 @@ class Harness:
         self.node.destroy_client(client)
         assert all(r.successful for r in future.result().results), future.result()
 
+    def wait_active(self, node, timeout=60.0):
+        """Wait until `node` reports the lifecycle state active (abp_common.lifecycle's
+        endpoint_status service: success once active)."""
+        client = self.node.create_client(Trigger, f'/{node}/endpoint_status')
+        deadline = time.monotonic() + timeout
+        try:
+            while True:
+                answer = self.call_service(self.executor, client, Trigger.Request(),
+                                           max(deadline - time.monotonic(), 1.0))
+                if answer.success:
+                    return
+                assert time.monotonic() < deadline, f'{node} not active: {answer.message}'
+                self.spin(lambda: False, 0.2)
+        finally:
+            self.node.destroy_client(client)
+
+    def wait_logged(self, node, text, timeout):
+        """Wait for a /rosout message of `node` containing `text`, after those already
+        awaited (a ROS message: the node's own account of an event the graph does not
+        otherwise show, such as a peer's claim it has taken in)."""
+        def found():
+            lines = [msg for name, msg in self.logs if name == node]
+            start = self._log_read.get(node, 0)
+            hit = next((i for i, msg in enumerate(lines[start:], start) if text in msg), None)
+            if hit is not None:
+                self._log_read[node] = hit + 1
+            return hit is not None
+        assert self.spin(found, timeout), \
+            f'{node} did not log {text!r}: {[m for n, m in self.logs if n == node]}'
+
     def odom_after_now(self, timeout=20.0):
         """The odometry of a /odom message stamped after now (the fake robot stamps it
         on this machine's clock): what the robot did after, not a message still in the
@@ -239,7 +279,7 @@ def tester(rclpy_context, call_service):
 
 def test_refusals_and_the_feasibility_service(ros_processes, tester):
     start_robot(ros_processes)
-    start_server(ros_processes, 'skill_servers', max_estimate_age=1.5)
+    start_server(ros_processes, tester, 'skill_servers', max_estimate_age=1.5)
     assert tester.spin(lambda: tester.odom is not None, 20)
 
     # No estimate at all: every action infeasible, every skill refused.
@@ -291,14 +331,14 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     # command can stop the base after the cancel.
     start_robot(ros_processes, '--cmd-timeout', '1e9')
     # Separate processes: the one-skill-at-a-time rule goes through /abp/skills/active.
-    start_server(ros_processes, 'orbit_server')
-    lift_server = start_server(ros_processes, 'lift_server')
+    start_server(ros_processes, tester, 'orbit_server')
+    start_server(ros_processes, tester, 'lift_server')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('ORBIT_180', lambda a: a[0])[0]
     # The lift server has found the orbit server on the claims topic (discovery done):
     # the ORBIT's claim will reach it while the ORBIT runs.
-    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 60)
+    tester.wait_logged('lift_server', 'skills peer /orbit_server: idle', 60)
 
     feedback = []
     _, orbit = tester.send(Orbit, 'orbit', Orbit.Goal(angle_deg=180.0), feedback)
@@ -309,7 +349,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
 
     # A second skill while ORBIT runs (in another process) is rejected with a reason. The
     # claim travels on a topic: the LIFT goes once the lift server says it has the claim.
-    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: orbit running', 30)
+    tester.wait_logged('lift_server', 'skills peer /orbit_server: orbit running', 30)
     _, lift = tester.send(Lift, 'lift', Lift.Goal())
     res = tester.result(lift, 10)
     assert res.status == GoalStatus.STATUS_ABORTED
@@ -350,7 +390,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
     assert all(c[1:] == (0.0, 0.0) for c in after), f'motion commands after the stop: {after}'
 
     # The claim was released: LIFT now runs (and is cancelled in its approach).
-    ros_processes.wait_for_line(lift_server, 'skills peer /orbit_server: idle', 30)
+    tester.wait_logged('lift_server', 'skills peer /orbit_server: idle', 30)
     feedback = []
     _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
     assert tester.spin(lambda: any(f.phase == 'approach' and f.progress > 0.05
@@ -361,7 +401,7 @@ def test_cancel_stops_the_robot_and_a_second_skill_is_rejected(ros_processes, te
 
 def test_orbit_and_lift_run_to_completion(ros_processes, tester):
     start_robot(ros_processes)
-    start_server(ros_processes, 'skill_servers')
+    start_server(ros_processes, tester, 'skill_servers')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('ORBIT_M90', lambda a: a[0])[0]
@@ -403,15 +443,15 @@ def test_an_aborted_manual_skill_brings_the_arms_home(ros_processes, tester):
     # The robot blocks the arms halfway through their first motion, and the timeout is
     # shortened only once they are blocked there: the abort finds the arms out whatever
     # the load (a timeout set at start could fall before they left home).
-    robot = start_robot(ros_processes, '--block-arms')
+    start_robot(ros_processes, '--block-arms')
     # Long enough that the blocked arms are not given up on before the timeout is set.
-    start_server(ros_processes, 'skill_servers', settle_timeout=60.0)
+    start_server(ros_processes, tester, 'skill_servers', settle_timeout=60.0)
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('LIFT', lambda a: a[0])[0]
     feedback = []
     _, lift = tester.send(Lift, 'lift', Lift.Goal(), feedback)
-    ros_processes.wait_for_line(robot, 'arms blocked', 60)
+    tester.wait_logged('fake_robot', 'arms blocked', 60)
     tester.set_parameter('/skill_servers', 'timeout', 1.0)
     res = tester.result(lift, 60)
     assert res.status == GoalStatus.STATUS_ABORTED, res.result.reason
@@ -426,12 +466,14 @@ def test_an_aborted_manual_skill_brings_the_arms_home(ros_processes, tester):
     ('timeout:=-3.0', 'timeout'),
     ('orbit_min_radius:=2.0', 'orbit_min_radius'),
 ])
-def test_bad_parameters_are_refused_clearly(override, expected):
-    result = subprocess.run([executable('push_server'), '--ros-args', '-p', override],
-                            capture_output=True, text=True, timeout=60)
-    assert result.returncode == 2, result.stderr
-    assert 'configuration error' in result.stderr and expected in result.stderr
-    assert 'Traceback' not in result.stderr
+def test_bad_parameters_are_refused_clearly(override, expected, main_in_process):
+    """The push_server executable's main() in this process (the exit code of a process
+    start-up is checked once, in test_sim_bridge_node.py)."""
+    from abp_skills.skills_node import push_main
+    code, stderr = main_in_process(push_main, '-p', override)
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and expected in stderr
+    assert 'Traceback' not in stderr
 
 
 def test_a_base_command_of_the_other_type_is_refused_with_both_types_named(ros_processes,
@@ -439,7 +481,7 @@ def test_a_base_command_of_the_other_type_is_refused_with_both_types_named(ros_p
     # The robot takes TwistStamped (Jazzy's diff_drive_controller); this server is set
     # to publish Twist on the same topic: DDS would carry nothing and say nothing.
     start_robot(ros_processes)
-    start_server(ros_processes, 'orbit_server', base_command_type='twist')
+    start_server(ros_processes, tester, 'orbit_server', base_command_type='twist')
     tester.cube_odom = (0.4, 0.0)
     assert tester.spin(lambda: tester.odom is not None, 20)
     assert tester.wait_until_feasibility('ORBIT_P90', lambda a: a[0])[0]

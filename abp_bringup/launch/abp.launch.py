@@ -34,13 +34,14 @@ fix, so a crash loop must end). The lifecycle manager itself is not respawned.
 
 import os
 
-from abp_common.graph_nodes import GRAPH, GRAPH_NODE_NAMES, ROBOT_NODE_NAMES
 from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument
 from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
+
+from abp_common.graph_nodes import GRAPH, GRAPH_NODE_NAMES, ROBOT_NODE_NAMES
 
 RESPAWN_MAX_RETRIES = 3
 # The choices of the nodes' own parameters (model_set, planner_mode, world, transition_rules;

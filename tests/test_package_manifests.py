@@ -113,7 +113,7 @@ def test_the_robot_graph_needs_only_runtime_packages():
 
     for node in GRAPH:
         assert (node.package in BENCH_ONLY) == node.sim_only, node
-        if not node.sim_only:
+        if not node.sim_only:   # runs on a robot or with the operator: no simulator
             assert node.package in RUNTIME_WITHOUT_BENCH, node
             assert node.package in exec_depends('abp_bringup') | {'abp_bringup'}, \
                 f'abp_bringup starts {node.executable} but does not exec-depend on it'

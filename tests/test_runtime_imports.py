@@ -1,4 +1,4 @@
-"""The robot graph's node processes load no offline or simulator code: not the ATG
+"""The robot and operator graphs' node processes load no offline or simulator code: not the ATG
 learner (atg_learning, atg_from_bags, learn_atg_cli, which import the runtime model set,
 never the other way round: transition_tables is the seam), not the sim bridge, the
 benchmarks or MuJoCo. Checked on what an import really loads (sys.modules), so a lazy or
@@ -17,8 +17,8 @@ OFFLINE_PACKAGES = {'abp_sim_bridge', 'abp_bench', 'mujoco', 'matplotlib', 'tqdm
 
 
 def node_modules():
-    """The module of each robot graph node's entry point (setup.py console_scripts), and
-    the lifecycle manager's."""
+    """The module of the entry point (setup.py console_scripts) of each node that runs
+    without the simulator (robot and operator graphs), and the lifecycle manager's."""
     wanted = {(n.package, n.executable) for n in GRAPH if not n.sim_only}
     wanted.add(('abp_bringup', 'lifecycle_manager'))
     modules = []
@@ -36,7 +36,7 @@ def test_node_processes_load_no_offline_or_simulator_code():
              '    importlib.import_module(name)\n'
              'print(json.dumps(sorted(sys.modules)))\n')
     modules = node_modules()
-    assert len(modules) == len([n for n in GRAPH if not n.sim_only]) + 1
+    assert len(modules) == len({n.executable for n in GRAPH if not n.sim_only}) + 1
     out = subprocess.run([sys.executable, '-c', probe, *modules], capture_output=True,
                          text=True, check=True).stdout
     loaded = set(json.loads(out))

@@ -41,7 +41,7 @@ from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
-from abp_common.graph_nodes import GRAPH, GRAPH_NODE_NAMES, ROBOT_NODE_NAMES
+from abp_common.graph_nodes import GRAPH_NODE_NAMES, ROBOT_NODE_NAMES, SIM, graph_nodes
 
 RESPAWN_MAX_RETRIES = 3
 # The choices of the nodes' own parameters (model_set, planner_mode, world, transition_rules;
@@ -97,7 +97,8 @@ def generate_launch_description():
     # /tf, /tf_static and robot_description; skill_servers runs all four action servers.
     # A sim-only node (the sim bridge) starts only with sim:=true.
     nodes = [node(n.package, n.executable, **extras.get(n.name, {}),
-                  **({'condition': IfCondition(sim)} if n.sim_only else {})) for n in GRAPH]
+                  **({'condition': IfCondition(sim)} if n.sim_only else {}))
+             for n in graph_nodes(SIM)]
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),

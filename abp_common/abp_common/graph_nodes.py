@@ -1,50 +1,73 @@
 """The graph's long-running managed nodes, in one place: each node's name, the package
-and executable that run it, and whether it runs only in simulation. The order is the
-bring-up order (dependencies first): the sim bridge's clock and sensors, then the
-robot's tf tree (robot_state), perception, the belief, the skills, the planner last.
+and executable that run it, and the graphs it runs in:
+
+- `sim`: the sim bridge stands in for the robot (scripts/start_graph.sh, `sim:=true`);
+- `robot`: the same nodes without the sim bridge (`start_graph.sh --robot`, `sim:=false`);
+- `operator`: no robot and no sim, a fixed camera and a person doing the skills
+  (`start_graph.sh --operator person`, docs/OPERATOR.md).
+
+The order is the bring-up order (dependencies first): the sensors (the sim bridge's clock
+and sensors, or the camera), the robot's tf tree (robot_state), perception, the belief,
+the skills, the planner last. A graph's nodes keep this order.
 
 Python users import it (abp_bringup.lifecycle_manager, abp.launch.py, abp_bench.soak);
 scripts/start_graph.sh starts the same nodes with its own per-node arguments, and
 tests/test_graph_nodes.py fails when its `start_managed` lines differ from this list.
-`python -m abp_common.graph_nodes [--robot]` prints `name package executable` lines.
+`python -m abp_common.graph_nodes [--graph G]` prints `name package executable` lines.
 """
 
 import argparse
 from typing import NamedTuple
+
+SIM, ROBOT, OPERATOR = 'sim', 'robot', 'operator'
+GRAPHS = (SIM, ROBOT, OPERATOR)
+_ALL = frozenset(GRAPHS)
+_WITH_ROBOT = frozenset((SIM, ROBOT))
 
 
 class GraphNode(NamedTuple):
     name: str
     package: str
     executable: str
-    sim_only: bool = False   # stands in for the robot: not started on the robot
+    graphs: frozenset   # the graphs it runs in (SIM, ROBOT, OPERATOR)
+
+    @property
+    def sim_only(self):
+        """Stands in for the robot: started in no graph that runs without the simulator."""
+        return self.graphs == {SIM}
 
 
 GRAPH = (
-    GraphNode('sim_bridge', 'abp_sim_bridge', 'sim_bridge', sim_only=True),
-    GraphNode('robot_state', 'abp_description', 'robot_state'),
-    GraphNode('artag_detector', 'abp_perception', 'artag_detector'),
-    GraphNode('aspect_matcher', 'abp_perception', 'aspect_matcher'),
-    GraphNode('belief', 'abp_belief', 'belief'),
+    GraphNode('sim_bridge', 'abp_sim_bridge', 'sim_bridge', frozenset((SIM,))),
+    GraphNode('camera', 'abp_perception', 'camera', frozenset((OPERATOR,))),
+    GraphNode('robot_state', 'abp_description', 'robot_state', _WITH_ROBOT),
+    GraphNode('artag_detector', 'abp_perception', 'artag_detector', _ALL),
+    GraphNode('aspect_matcher', 'abp_perception', 'aspect_matcher', _ALL),
+    GraphNode('belief', 'abp_belief', 'belief', _ALL),
     # The four action servers in one process.
-    GraphNode('skill_servers', 'abp_skills', 'skill_servers'),
-    GraphNode('planner', 'abp_planner', 'planner'),
+    GraphNode('skill_servers', 'abp_skills', 'skill_servers', _WITH_ROBOT),
+    GraphNode('operator_skills', 'abp_skills', 'operator_skills', frozenset((OPERATOR,))),
+    GraphNode('planner', 'abp_planner', 'planner', _ALL),
 )
-GRAPH_NODE_NAMES = tuple(node.name for node in GRAPH)
-ROBOT_NODE_NAMES = tuple(node.name for node in GRAPH if not node.sim_only)
 
 
-def graph_nodes(sim=True):
-    """The nodes started in simulation (`sim`) or on the robot, in bring-up order."""
-    return tuple(node for node in GRAPH if sim or not node.sim_only)
+def graph_nodes(graph=SIM):
+    """The nodes of `graph` (SIM, ROBOT or OPERATOR), in bring-up order."""
+    if graph not in GRAPHS:
+        raise ValueError(f'graph must be one of {", ".join(GRAPHS)}, got {graph!r}')
+    return tuple(node for node in GRAPH if graph in node.graphs)
+
+
+GRAPH_NODE_NAMES = tuple(node.name for node in graph_nodes(SIM))
+ROBOT_NODE_NAMES = tuple(node.name for node in graph_nodes(ROBOT))
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m abp_common.graph_nodes',
                                      description=__doc__.split('\n\n')[0])
-    parser.add_argument('--robot', action='store_true', help='only the nodes run on the robot')
+    parser.add_argument('--graph', choices=GRAPHS, default=SIM, help='which graph (default sim)')
     args = parser.parse_args(argv)
-    for node in graph_nodes(sim=not args.robot):
+    for node in graph_nodes(args.graph):
         print(node.name, node.package, node.executable)
     return 0
 
@@ -53,4 +76,5 @@ if __name__ == '__main__':
     raise SystemExit(main())
 
 
-__all__ = ['GRAPH', 'GRAPH_NODE_NAMES', 'ROBOT_NODE_NAMES', 'GraphNode', 'graph_nodes']
+__all__ = ['GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'ROBOT', 'ROBOT_NODE_NAMES',
+           'SIM', 'GraphNode', 'graph_nodes']

@@ -51,8 +51,8 @@ from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.model_file import fingerprint  # noqa: E402
 from abp_belief.modelset import TransitionParams  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
-from abp_common import names, qos  # noqa: E402
-from abp_common.health import DIAGNOSTICS  # noqa: E402
+from abp_common import diagnostic_keys, names, qos  # noqa: E402
+from abp_common.health import DIAGNOSTICS, STATUS_SUFFIX  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.controllers import CONTROLLERS  # noqa: E402
 from abp_msgs.msg import (  # noqa: E402
@@ -399,12 +399,12 @@ def diagnostics_counts(statuses):
     """{(node, topic, kind): count} and {node: level} from the latest statuses."""
     counts, levels = {}, {}
     for name, status in statuses.items():
-        node = name.removesuffix(': health').rsplit('/', 1)[-1]
+        node = name.removesuffix(STATUS_SUFFIX).rsplit('/', 1)[-1]
         levels[node] = status.level[0] if isinstance(status.level, bytes) else status.level
         for kv in status.values:
-            if kv.key.startswith('rejected ') and kv.key != 'rejected total':
-                topic, _, kind = kv.key[len('rejected '):].rpartition(' ')
-                counts[(node, topic, kind)] = int(kv.value)
+            parsed = diagnostic_keys.parse_rejected(kv.key)
+            if parsed is not None:
+                counts[(node, *parsed)] = int(kv.value)
     return counts, levels
 
 

@@ -15,17 +15,15 @@ import subprocess
 
 import pytest
 
+from abp_common.graph_nodes import GRAPH
 from tests.helpers.manifests import REPO
 
 STACK_MODULES = ('rclpy', 'numpy', 'scipy', 'yaml', 'cv2', 'pinocchio', 'ruckig', 'rosbags',
                  'mujoco')
-# The executables scripts/start_graph.sh and abp.launch.py start.
-GRAPH_EXECUTABLES = {('abp_sim_bridge', 'sim_bridge'), ('abp_perception', 'artag_detector'),
-                     ('abp_perception', 'aspect_matcher'), ('abp_belief', 'belief'),
-                     ('abp_skills', 'skill_servers'), ('abp_planner', 'planner'),
-                     ('abp_bringup', 'lifecycle_manager'), ('abp_bringup', 'recognize'),
-                     ('abp_description', 'robot_state'), ('abp_perception', 'camera'),
-                     ('abp_skills', 'operator_skills')}
+# The executables scripts/start_graph.sh and abp.launch.py start: every graph's nodes
+# (abp_common.graph_nodes), the lifecycle manager and the Recognize client.
+GRAPH_EXECUTABLES = {(node.package, node.executable) for node in GRAPH} | {
+    ('abp_bringup', 'lifecycle_manager'), ('abp_bringup', 'recognize')}
 
 
 def entry_points():

@@ -85,6 +85,40 @@ def test_runtime_packages_never_need_the_simulator_or_benchmark_tools(name):
     assert not imports & BENCH_ONLY, f'{name} imports {imports & BENCH_ONLY}'
 
 
+def exec_depends(name):
+    package = REPO / name
+    return declared(package, ('depend', 'exec_depend')) if package.is_dir() else set()
+
+
+@pytest.mark.parametrize('name', RUNTIME_WITHOUT_BENCH)
+def test_runtime_packages_never_exec_depend_on_the_simulator(name):
+    """Through the workspace's packages too: rosdep and colcon follow exec_depend, so one
+    runtime package naming abp_sim_bridge would put MuJoCo on every robot."""
+    seen, todo, bench = set(), [name], {}
+    while todo:
+        current = todo.pop()
+        if current in seen:
+            continue
+        seen.add(current)
+        for key in exec_depends(current):
+            if key in BENCH_ONLY:
+                bench[key] = current
+            elif key.startswith('abp_'):
+                todo.append(key)
+    assert not bench, f'{name} exec-depends on {bench} (key: the package that names it)'
+
+
+def test_the_robot_graph_needs_only_runtime_packages():
+    from abp_common.graph_nodes import GRAPH
+
+    for node in GRAPH:
+        assert (node.package in BENCH_ONLY) == node.sim_only, node
+        if not node.sim_only:   # runs on a robot or with the operator: no simulator
+            assert node.package in RUNTIME_WITHOUT_BENCH, node
+            assert node.package in exec_depends('abp_bringup') | {'abp_bringup'}, \
+                f'abp_bringup starts {node.executable} but does not exec-depend on it'
+
+
 # Issue 11: a node file a reader can hold; the anchors' node files are 70-200 lines.
 MAX_NODE_FILE_LINES = 450
 

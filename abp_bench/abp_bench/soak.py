@@ -50,22 +50,15 @@ from std_srvs.srv import Trigger
 
 from abp_belief.population import robot_set
 from abp_common import names, qos
+from abp_common.graph_nodes import SIM, graph_nodes
 from abp_common.server_handshake import wait_until_answering
 from abp_msgs.action import Recognize
 from abp_msgs.msg import ExecutedAction, SimGroundTruth
 
 from .graph_benchmark import FAULTS_YAML, repo_root, terminate_with_parent
 
-# The graph's long-running nodes: node name -> (package, executable).
-GRAPH_NODES = {
-    'sim_bridge': ('abp_sim_bridge', 'sim_bridge'),
-    'robot_state': ('abp_description', 'robot_state'),
-    'artag_detector': ('abp_perception', 'artag_detector'),
-    'aspect_matcher': ('abp_perception', 'aspect_matcher'),
-    'belief': ('abp_belief', 'belief'),
-    'skill_servers': ('abp_skills', 'skill_servers'),
-    'planner': ('abp_planner', 'planner'),
-}
+# The sim graph's long-running nodes: node name -> (package, executable).
+GRAPH_NODES = {node.name: (node.package, node.executable) for node in graph_nodes(SIM)}
 SIM_BRIDGE = '/sim_bridge'
 GRAPH_READY = '/lifecycle_manager/graph_ready'
 # Memory growth is measured from this episode (the first ones warm caches up).

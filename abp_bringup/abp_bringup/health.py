@@ -19,10 +19,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
+from abp_common import diagnostic_keys as keys
 from abp_common.health import DIAGNOSTICS, node_of_status
 
 LEVELS = {0: 'OK', 1: 'WARN', 2: 'ERROR', 3: 'STALE'}
-RATE, AGE, REJECTED = ' rate (Hz)', ' age of last input (s)', 'rejected '
 
 
 def level_of(status):
@@ -39,21 +39,28 @@ def summarize(statuses, width=100):
         node = node_of_status(name) or name
         lines.append(f'{node:<24} {LEVELS.get(level_of(status), "?"):<6} '
                      f'{status.message}'[:width])
-        if values.get('lifecycle state', 'active') != 'active':
-            lines.append(f'  lifecycle state: {values["lifecycle state"]}')
-        inputs = [f'{key[:-len(RATE)]} {value} Hz (last {values.get(key[:-len(RATE)] + AGE, "?")}'
-                  f'{"" if values.get(key[:-len(RATE)] + AGE) == "never" else " s ago"})'
-                  for key, value in values.items() if key.endswith(RATE)]
+        state = values.get(keys.LIFECYCLE_STATE, 'active')
+        if state != 'active':
+            lines.append(f'  {keys.LIFECYCLE_STATE}: {state}')
+        inputs = []
+        for key, value in values.items():
+            topic = keys.rate_topic(key)
+            if topic is None:
+                continue
+            age = values.get(keys.age_key(topic))
+            inputs.append(f'{topic} {value} Hz (last {"?" if age is None else age}'
+                          f'{"" if age == keys.AGE_NEVER else " s ago"})')
         if inputs:
             lines.extend(_wrapped('  inputs:   ', inputs, width))
-        if 'latency mean (ms)' in values:
-            lines.append(f'  latency:  mean {values["latency mean (ms)"]} ms, '
-                         f'p95 {values.get("latency p95 (ms)", "?")} ms, '
-                         f'max {values.get("latency max (ms)", "?")} ms')
+        if keys.LATENCY_MEAN in values:
+            lines.append(f'  latency:  mean {values[keys.LATENCY_MEAN]} ms, '
+                         f'p95 {values.get(keys.LATENCY_P95, "?")} ms, '
+                         f'max {values.get(keys.LATENCY_MAX, "?")} ms')
         rejected = {}
         for key, value in values.items():
-            if key.startswith(REJECTED) and key != 'rejected total':
-                topic, _, kind = key[len(REJECTED):].rpartition(' ')
+            parsed = keys.parse_rejected(key)
+            if parsed is not None:
+                topic, kind = parsed
                 rejected.setdefault(topic, []).append(f'{kind} {value}')
         for topic, kinds in sorted(rejected.items()):
             lines.extend(_wrapped(f'  rejected: {topic}: ', kinds, width))

@@ -33,16 +33,15 @@ from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from abp_common import qos
+from abp_common.graph_nodes import GRAPH_NODE_NAMES
 from abp_common.lifecycle_report import next_transition, not_active, unmatched
 from abp_common.node_runner import run_node
 from abp_common.param_spec import BOOL, DOUBLE, STRING_ARRAY, ParamSpec
 from abp_common.parameters import declare_all
 from abp_common.tolerant_subscriptions import TolerantNode
 
-# Dependency order: the sim bridge's clock and sensors first, then the robot's tf tree
-# (robot_state), the planner last.
-GRAPH_NODES = ('sim_bridge', 'robot_state', 'artag_detector', 'aspect_matcher', 'belief',
-               'skill_servers', 'planner')
+# In dependency order (abp_common.graph_nodes).
+GRAPH_NODES = GRAPH_NODE_NAMES
 READY_LINE = 'graph ready'
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}

@@ -41,6 +41,8 @@ from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import LaunchConfiguration, PythonExpression
 from launch_ros.actions import Node
 
+from abp_common.graph_nodes import GRAPH_NODE_NAMES, ROBOT_NODE_NAMES, SIM, graph_nodes
+
 RESPAWN_MAX_RETRIES = 3
 # The choices of the nodes' own parameters (model_set, planner_mode, world, transition_rules;
 # the test checks they match): a wrong value stops `ros2 launch` at once.
@@ -80,8 +82,23 @@ def generate_launch_description():
         return node('abp_bringup', 'lifecycle_manager', {'node_names': node_names},
                     sim_time=False, managed=False, condition=condition)
 
-    graph = ['robot_state', 'artag_detector', 'aspect_matcher', 'belief', 'skill_servers',
-             'planner']
+    # Per node: the parameters and process options beyond the common ones.
+    extras = {
+        # The sim bridge publishes /clock, so it runs on wall time. The hidden cube is
+        # drawn with the same seed, as start_graph.sh --seed.
+        'sim_bridge': dict(extra={'world': LaunchConfiguration('world'),
+                                  'cube_seed': LaunchConfiguration('seed')},
+                           sim_time=False),
+        # One BLAS thread: see scripts/start_graph.sh.
+        'planner': dict(extra={'planner_mode': LaunchConfiguration('planner')},
+                        additional_env={'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}),
+    }
+    # The graph's nodes in bring-up order (abp_common.graph_nodes): robot_state gives
+    # /tf, /tf_static and robot_description; skill_servers runs all four action servers.
+    # A sim-only node (the sim bridge) starts only with sim:=true.
+    nodes = [node(n.package, n.executable, **extras.get(n.name, {}),
+                  **({'condition': IfCondition(sim)} if n.sim_only else {}))
+             for n in graph_nodes(SIM)]
 
     return LaunchDescription([
         DeclareLaunchArgument('sim', default_value='true', description='start the sim bridge'),
@@ -100,20 +117,8 @@ def generate_launch_description():
                               choices=[''] + TABLES),
         DeclareLaunchArgument('namespace', default_value='',
                               description='namespace of every node (empty = the root)'),
-        # The sim bridge publishes /clock, so it runs on wall time.
-        # The hidden cube drawn with the same seed, as start_graph.sh --seed.
-        node('abp_sim_bridge', 'sim_bridge', {'world': LaunchConfiguration('world'),
-                                              'cube_seed': LaunchConfiguration('seed')},
-             sim_time=False, condition=IfCondition(sim)),
-        node('abp_description', 'robot_state'),  # /tf, /tf_static, robot_description
-        node('abp_perception', 'artag_detector'),
-        node('abp_perception', 'aspect_matcher'),
-        node('abp_belief', 'belief'),
-        node('abp_skills', 'skill_servers'),  # all four action servers, one process
-        # One BLAS thread: see scripts/start_graph.sh.
-        node('abp_planner', 'planner', {'planner_mode': LaunchConfiguration('planner')},
-             additional_env={'OPENBLAS_NUM_THREADS': '1', 'OMP_NUM_THREADS': '1'}),
+        *nodes,
         # Brings the nodes up in this order (the sim bridge first, when there is one).
-        manager(['sim_bridge'] + graph, IfCondition(sim)),
-        manager(graph, UnlessCondition(sim)),
+        manager(list(GRAPH_NODE_NAMES), IfCondition(sim)),
+        manager(list(ROBOT_NODE_NAMES), UnlessCondition(sim)),
     ])

@@ -391,6 +391,10 @@ def test_no_respawn_loop_on_a_configuration_error(launch, scenario):
         assert 0 <= retries == module.RESPAWN_MAX_RETRIES, f'{name}: unbounded respawn'
     # The manager brings up exactly the launched managed nodes, in the launch order.
     assert list(manager['node_names'][0]) == managed
+    # ... which are the graph's nodes of abp_common.graph_nodes, in its order.
+    from abp_common.graph_nodes import ROBOT, SIM, graph_nodes
+    graph = SIM if scenario['sim'] == 'true' else ROBOT
+    assert managed == [n.name for n in graph_nodes(graph)]
 
 
 def test_launch_argument_choices_are_the_nodes_choices(launch):

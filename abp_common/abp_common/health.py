@@ -24,6 +24,7 @@ import traceback
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
 
+from .diagnostic_keys import LIFECYCLE_STATE
 from .health_stats import ERROR, HEALTH_SPECS, OK, WARN, HealthStats
 from .input_checks import Rejected, StampCheck
 from .parameters import declare_all
@@ -31,7 +32,6 @@ from .parameters import declare_all
 DIAGNOSTICS = '/diagnostics'
 STATUS_SUFFIX = ': health'   # a node's status is named `<node full name><suffix>`
 HARDWARE_ID = 'abp'
-LIFECYCLE_STATE = 'lifecycle state'
 _LEVELS = {OK: DiagnosticStatus.OK, WARN: DiagnosticStatus.WARN,
            ERROR: DiagnosticStatus.ERROR}
 

@@ -20,6 +20,7 @@ import collections
 import threading
 import time
 
+from . import diagnostic_keys as keys
 from .param_spec import DOUBLE, ParamSpec
 
 OK, WARN, ERROR = 0, 1, 2          # diagnostic_msgs/DiagnosticStatus levels
@@ -131,12 +132,12 @@ class HealthStats:
                 recent = self._input_windows[topic].count(now) \
                     if topic in self._input_windows else 0
                 span = min(self.window_s, max(now - self._started, 1e-3))
-                values.append((f'{topic} rate (Hz)', f'{recent / span:.2f}'))
-                values.append((f'{topic} inputs', str(self.inputs[topic])))
+                values.append((keys.rate_key(topic), f'{recent / span:.2f}'))
+                values.append((keys.inputs_key(topic), str(self.inputs[topic])))
                 last = self._last_input.get(topic)
                 age = None if last is None else now - last
-                values.append((f'{topic} age of last input (s)',
-                               'never' if age is None else f'{age:.2f}'))
+                values.append((keys.age_key(topic),
+                               keys.AGE_NEVER if age is None else f'{age:.2f}'))
                 limit = self._expected.get(topic)
                 if limit is not None and (age is None or age > limit) \
                         and now - self._started > limit:
@@ -148,14 +149,14 @@ class HealthStats:
                 if bad and bad >= recent:
                     all_rejected.append(topic)
             for (topic, kind), n in sorted(self.rejected.items()):
-                values.append((f'rejected {topic} {kind}', str(n)))
-            values.append(('rejected total', str(sum(self.rejected.values()))))
+                values.append((keys.rejected_key(topic, kind), str(n)))
+            values.append((keys.REJECTED_TOTAL, str(sum(self.rejected.values()))))
             if self._latency:
                 ordered = sorted(self._latency)
-                values.append(('latency mean (ms)',
+                values.append((keys.LATENCY_MEAN,
                                f'{1e3 * sum(ordered) / len(ordered):.2f}'))
-                values.append(('latency max (ms)', f'{1e3 * ordered[-1]:.2f}'))
-                values.append(('latency p95 (ms)',
+                values.append((keys.LATENCY_MAX, f'{1e3 * ordered[-1]:.2f}'))
+                values.append((keys.LATENCY_P95,
                                f'{1e3 * ordered[int(0.95 * (len(ordered) - 1))]:.2f}'))
             fault = self._fault
         if fault:

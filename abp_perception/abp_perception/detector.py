@@ -201,7 +201,7 @@ class TagDetector:
                  marker_size: float = 0.08, refine_corners: bool = True,
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
-                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera',
+                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera_optical_frame',
                  image_size=None, cube_size: float | None = 0.10, face_search: bool = True,
                  blur_decode: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):

@@ -26,6 +26,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from abp_belief.belief_config import BELIEF_STEP_KEY, EVIDENCE_GATE_KEY
+from abp_common import diagnostic_keys as keys
 
 SUCCEEDED, CANCELED, ABORTED = 'succeeded', 'canceled', 'aborted'
 # Pause between feasibility checks while no action is feasible.
@@ -92,15 +93,16 @@ def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'
     stall in the belief node from one between the belief node and the planner."""
     if values is None:
         return 'no /diagnostics status of the belief node arrived'
-    labels = ((f'{observation_topic} inputs', '{} aspect observations received'),
-              (f'{observation_topic} age of last input (s)', 'the last {} s before'),
-              ('rejected total', '{} inputs rejected'), (BELIEF_STEP_KEY, 'at step {}'),
+    labels = ((keys.inputs_key(observation_topic), '{} aspect observations received'),
+              (keys.age_key(observation_topic), 'the last {} s before'),
+              (keys.REJECTED_TOTAL, '{} inputs rejected'), (BELIEF_STEP_KEY, 'at step {}'),
               (EVIDENCE_GATE_KEY, 'evidence gate: {}'))
     # Bounded: /diagnostics is anyone's topic, and this text ends up in a goal result.
     values = {key[:REPORT_CHARS]: value[:REPORT_CHARS] for key, value in values.items()}
     parts = [label.format(values[key]) for key, label in labels if key in values]
-    rejected = [f'{count} {key.removeprefix("rejected ")}' for key, count in values.items()
-                if key.startswith('rejected ') and key != 'rejected total'][:REPORT_ITEMS]
+    rejected = [f'{count} {key.removeprefix(keys.REJECTED_PREFIX)}'
+                for key, count in values.items()
+                if keys.parse_rejected(key) is not None][:REPORT_ITEMS]
     if rejected:
         parts.append(f'rejected: {", ".join(rejected)}')
     return f'the belief node reported {age_s:.1f} s ago: {", ".join(parts)}'

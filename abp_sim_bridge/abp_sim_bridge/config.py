@@ -191,27 +191,33 @@ class CameraConfig:
     noise_bank: int
     tag_size: float
     cube_size: float
-    p_missed_tag: float = 0.0
+    p_missed_tag: float = _BY_NAME['p_missed_tag'].default
+
+
+def _default(name):
+    """The default of parameter `name`: the dataclasses below take theirs from PARAMETERS,
+    so a default is written once."""
+    return _BY_NAME[name].default
 
 
 @dataclass
 class MujocoConfig:
     """The MuJoCo world's physical quantities and fault magnitudes (world mujoco)."""
-    physics_rate: float = 500.0
-    cube_mass: float = 0.75
-    heavy_mass_ratio: float = 0.625
-    cube_friction: float = 0.5
-    floor_friction: float = 0.5
-    hand_friction: float = 1.0
-    hand_torsional_friction: float = 0.001
-    friction_scale: float = 1.0
-    servo_stiffness_scale: float = 1.0
-    grasp_opening: float = 0.0
-    joint_offsets: tuple = ()
-    slip_grasp_opening: float = 0.01
-    missed_push_offset: float = 0.10
-    shadows: bool = False
-    offsamples: int = 0
+    physics_rate: float = _default('physics_rate')
+    cube_mass: float = _default('cube_mass')
+    heavy_mass_ratio: float = _default('heavy_mass_ratio')
+    cube_friction: float = _default('cube_friction')
+    floor_friction: float = _default('floor_friction')
+    hand_friction: float = _default('hand_friction')
+    hand_torsional_friction: float = _default('hand_torsional_friction')
+    friction_scale: float = _default('friction_scale')
+    servo_stiffness_scale: float = _default('servo_stiffness_scale')
+    grasp_opening: float = _default('grasp_opening')
+    joint_offsets: tuple = ()     # parameter joint_offsets: none (its default) = no offsets
+    slip_grasp_opening: float = _default('slip_grasp_opening')
+    missed_push_offset: float = _default('missed_push_offset')
+    shadows: bool = _default('camera_shadows')
+    offsamples: int = _default('camera_offsamples')
 
 
 @dataclass
@@ -222,13 +228,13 @@ class SimBridgeConfig:
     settings: SimSettings
     failures: Failures
     camera: CameraConfig
-    distractors: list = field(default_factory=list)
-    speedup: float = 1.0
-    publish_clock: bool = True
-    ground_truth_rate: float = 5.0
-    failure_seed: int = 0
-    look_at_cube: bool = True
-    world: str = 'rules'
+    distractors: list = field(default_factory=list)   # built from parameter distractors
+    speedup: float = _default('speedup')
+    publish_clock: bool = _default('publish_clock')
+    ground_truth_rate: float = _default('ground_truth_rate')
+    failure_seed: int = _default('failure_seed')
+    look_at_cube: bool = _default('look_at_cube')
+    world: str = _default('world')
     mujoco: MujocoConfig = field(default_factory=MujocoConfig)
 
 

@@ -15,42 +15,42 @@ from .skill_checks import Refused
 
 
 class FeasibilityService:
-    """The feasibility service on `node` (a SkillsNode)."""
+    """The feasibility service of a skills node (`context`: a SkillsContext)."""
 
-    def __init__(self, node):
-        self.node = node
-        self.service = node.create_service(CheckFeasibility, names.CHECK_FEASIBILITY,
-                                           self._on_request,
-                                           callback_group=node.callback_group)
+    def __init__(self, context):
+        self.ctx = context
+        self.service = context.ros.create_service(CheckFeasibility, names.CHECK_FEASIBILITY,
+                                                  self._on_request,
+                                                  callback_group=context.callback_group)
 
     def _current_joints(self):
         """The recent joint positions without waiting for them, or None."""
-        node = self.node
-        if node.state.latest_joints() is None:
+        ctx = self.ctx
+        if ctx.state.latest_joints() is None:
             return None
         try:
-            return node.state.joints(node.param('max_state_age'), wait=False)
+            return ctx.state.joints(ctx.param('max_state_age'), wait=False)
         except Refused:
             return None
 
     def _on_request(self, request, response):
-        node = self.node
+        ctx = self.ctx
         actions = list(request.actions) or list(ACTIONS)
         try:
-            cube_base, _ = node.cube()
+            cube_base, _ = ctx.cube()
             why = None
         except Refused as refusal:
             cube_base, why = None, str(refusal).replace('refused: ', '', 1)
         q = self._current_joints()
         response.actions = actions
-        with node.plan_lock:
+        with ctx.plan_lock:
             if q is None:
-                q = node.motion_planner.home(node.kin.neutral())  # as it will be when idle
+                q = ctx.motion_planner.home(ctx.kin.neutral())  # as it will be when idle
             for action in actions:
                 if why is not None:
                     ok, reason = False, why
                 else:
-                    ok, reason = node.motion_planner.feasibility(action, q, cube_base)
+                    ok, reason = ctx.motion_planner.feasibility(action, q, cube_base)
                 response.feasible.append(bool(ok))
                 response.reasons.append('' if ok else reason)
         return response

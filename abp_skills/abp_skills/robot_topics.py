@@ -4,7 +4,7 @@
 estimate: hypotheses[0].object_pose, in base_link or any URDF frame) and feeds the node's
 `RobotState`; malformed messages (abp_common.input_checks: non-finite values, sizes that
 disagree, frames not in the URDF, stamps from the past or the future) are rejected and
-counted in the node's /diagnostics (`node.health`, abp_common.health). `RobotCommands`
+counted in the node's /diagnostics (`SkillsContext.health`, abp_common.health). `RobotCommands`
 commands the base (TwistStamped or Twist) and every controller of
 `abp_description.controllers.CONTROLLERS` (FollowJointTrajectory goals on
 <controller>/follow_joint_trajectory, or JointTrajectory on <controller>/joint_trajectory),
@@ -52,11 +52,12 @@ def duration_msg(seconds):
 
 
 class RobotInputs:
-    """The robot's sensor topics and the cube estimate into `node.state` (a RobotState)."""
+    """The robot's sensor topics and the cube estimate into `context.state` (a RobotState;
+    `context`: a SkillsContext)."""
 
-    def __init__(self, node):
-        self.node = node
-        health = node.health
+    def __init__(self, context):
+        self.ctx = context
+        health = context.health
         self._observation_stamps = health.stamp_check()
         # Each topic on its own exclusive group: in the node's reentrant group two threads
         # could take two messages of one topic and store the older one last.
@@ -70,22 +71,22 @@ class RobotInputs:
     def _on_joint_states(self, msg):
         input_checks.joint_state(msg)
         positions = dict(zip(msg.name, msg.position))
-        if not any(self.node.kin.has_joint(n) for n in positions):
+        if not any(self.ctx.kin.has_joint(n) for n in positions):
             raise Rejected('unknown_id', 'joint_states names no joint of the robot')
-        self.node.state.set_joint_positions(positions)
-        self.node.clock_rate.feed(time.monotonic(), self.node.now())
+        self.ctx.state.set_joint_positions(positions)
+        self.ctx.clock_rate.feed(time.monotonic(), self.ctx.now())
 
     def _on_odom(self, msg):
         input_checks.odometry(msg)
         p = msg.pose.pose
         o = p.orientation
-        self.node.state.set_odom((p.position.x, p.position.y,
+        self.ctx.state.set_odom((p.position.x, p.position.y,
                                   yaw_of_quaternion(o.x, o.y, o.z, o.w)))
 
     def _on_observation(self, msg):
         input_checks.aspect_observation(msg)
         stamps = self._observation_stamps
-        stamps.check(msg.header.stamp, self.node.health.now_ns())
+        stamps.check(msg.header.stamp, self.ctx.health.now_ns())
         stamps.taken(msg.header.stamp)
         if not msg.hypotheses:
             return
@@ -93,18 +94,18 @@ class RobotInputs:
         point = np.array([pose.position.x, pose.position.y, pose.position.z])
         frame = msg.header.frame_id.lstrip('/')
         if frame not in ('', 'base_link'):
-            node = self.node
-            if not node.kin.has_frame(frame):
+            ctx = self.ctx
+            if not ctx.kin.has_frame(frame):
                 raise Rejected('frame', f'cube estimate in frame {frame[:40]!r}, which is not '
                                         'in the URDF')
-            q = node.state.latest_joints()
+            q = ctx.state.latest_joints()
             if q is None:
                 raise Rejected('no_joint_states', f'cube estimate in frame {frame!r} cannot '
                                                   'be put in base_link before /joint_states')
-            with node.fk_lock:
-                tf = node.kin.frame_pose(q, frame)
+            with ctx.fk_lock:
+                tf = ctx.kin.frame_pose(q, frame)
             point = tf[:3, :3] @ point + tf[:3, 3]
-        self.node.state.set_cube_estimate(point)
+        self.ctx.state.set_cube_estimate(point)
 
 
 class RobotCommands:
@@ -121,18 +122,19 @@ class RobotCommands:
     controller (what the controller itself does after a cancel): a trajectory without
     points is refused by Jazzy's joint_trajectory_controller and never sent."""
 
-    def __init__(self, node):
-        self.node = node
+    def __init__(self, context):
+        self.ctx = context
+        node = context.ros
         self.moved = False
-        self._base_kind = node.param('base_command_type')
-        self._base_topic = node.param('base_command_topic')
+        self._base_kind = context.param('base_command_type')
+        self._base_topic = context.param('base_command_topic')
         self._cmd_pub = node.create_publisher(base_command.message_type(self._base_kind),
                                               self._base_topic, RELIABLE)
         self._traj_pubs = {
             name: node.create_publisher(JointTrajectory, names.trajectory_topic(name), RELIABLE)
             for name in CONTROLLERS
         }
-        self._interface = node.param('trajectory_interface')
+        self._interface = context.param('trajectory_interface')
         self._calls = None if self._interface == 'topic' else ClientCalls(node)
         self._clients = {} if self._interface == 'topic' else {
             name: ActionClient(node, FollowJointTrajectory,
@@ -148,7 +150,7 @@ class RobotCommands:
     # -- the base ----------------------------------------------------------------------
     def _publish_base(self, v, w):
         self._cmd_pub.publish(base_command.command(
-            self._base_kind, v, w, self.node.get_clock().now().to_msg()))
+            self._base_kind, v, w, self.ctx.ros.get_clock().now().to_msg()))
 
     def velocity(self, v, w):
         """Drive the base at v (m/s), ω (rad/s)."""
@@ -162,7 +164,7 @@ class RobotCommands:
         """Why the base command reaches nobody (a sentence), or None: no subscriber on the
         topic, or subscribers of the other message type (DDS would carry nothing and say
         nothing)."""
-        node = self.node
+        node = self.ctx.ros
         topic = node.resolve_topic_name(self._base_topic)
         endpoints = node.get_subscriptions_info_by_topic(topic)
         mismatch = base_command.type_mismatch(self._base_kind, topic, endpoints)
@@ -183,13 +185,13 @@ class RobotCommands:
         for _ in range(3):
             self.stop_base()
         cancelled = {name for name, goal in self._goals.items() if goal.cancel()}
-        q = self.node.state.latest_joints()
+        q = self.ctx.state.latest_joints()
         if q is None:       # no joint state ever: nothing to hold at (and nothing moved)
             return
         for name, joints in CONTROLLERS.items():
             if name in cancelled:
                 continue
-            idx = [self.node.kin.joint_index(j) for j in joints]
+            idx = [self.ctx.kin.joint_index(j) for j in joints]
             msg = JointTrajectory(joint_names=list(joints))
             msg.points.append(JointTrajectoryPoint(
                 positions=q[idx].tolist(), velocities=[0.0] * len(idx),
@@ -204,8 +206,8 @@ class RobotCommands:
         within `tolerance` (rad) of the end, at most `settle_s` after it. Returns the start
         time (node clock, s)."""
         self.moved = True
-        start_delay_s *= self.node.clock_rate.rate()
-        now = self.node.get_clock().now()
+        start_delay_s *= self.ctx.clock_rate.rate()
+        now = self.ctx.ros.get_clock().now()
         start = now.nanoseconds * 1e-9 + start_delay_s
         stamp = (now + RclpyDuration(seconds=start_delay_s)).to_msg() if start_delay_s > 0 \
             else None
@@ -225,11 +227,11 @@ class RobotCommands:
     def aim_head(self, q, cube_base):
         """Point the camera at `cube_base` (base_link) from the joints `q` (on the topic:
         a stream of short aiming moves, each replacing the last, needs no result)."""
-        node = self.node
-        with node.fk_lock:
-            q_look, _ = look_at(node.kin, q, cube_base)
+        ctx = self.ctx
+        with ctx.fk_lock:
+            q_look, _ = look_at(ctx.kin, q, cube_base)
         joints = CONTROLLERS[HEAD_CONTROLLER]
-        idx = [node.kin.joint_index(n) for n in joints]
+        idx = [ctx.kin.joint_index(n) for n in joints]
         msg = JointTrajectory(joint_names=list(joints))
         msg.points.append(JointTrajectoryPoint(
             positions=q_look[idx].tolist(), velocities=[0.0] * len(idx),
@@ -257,7 +259,8 @@ class RobotCommands:
             return False
         client = self._clients[name]
         if name not in self._answering:
-            action = self.node.resolve_topic_name(FOLLOW_JOINT_TRAJECTORY.format(controller=name))
+            action = self.ctx.ros.resolve_topic_name(
+                FOLLOW_JOINT_TRAJECTORY.format(controller=name))
             if not client.server_is_ready():
                 if self._interface == 'action':
                     raise Refused(f'{action} has no action server (trajectory_interface: '

@@ -41,44 +41,44 @@ SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 
 
 class SkillActionServers:
-    """The action servers of `skills` on `node` (a SkillsNode)."""
+    """The action servers of `skills` of a skills node (`context`: a SkillsContext)."""
 
-    def __init__(self, node, skills):
-        self.node = node
+    def __init__(self, context, skills):
+        self.ctx = context
         self.servers = [
-            ActionServer(node, SKILL_TYPES[skill], names.skill_action(skill),
+            ActionServer(context.ros, SKILL_TYPES[skill], names.skill_action(skill),
                          execute_callback=lambda handle, s=skill: self._execute(s, handle),
                          goal_callback=lambda _goal: GoalResponse.ACCEPT,
                          cancel_callback=lambda _handle: CancelResponse.ACCEPT,
-                         callback_group=node.callback_group)
+                         callback_group=context.callback_group)
             for skill in skills]
 
     # -- a goal, start to end --------------------------------------------------------------
     def _execute(self, skill, goal_handle):
-        node = self.node
-        started = node.now()
-        why = node.claim.claim(skill, node.param('claim_settle_time'))
+        ctx = self.ctx
+        started = ctx.now()
+        why = ctx.claim.claim(skill, ctx.param('claim_settle_time'))
         if why is not None:
-            node.get_logger().info(f'{skill}: {why}')
+            ctx.logger().info(f'{skill}: {why}')
             return self._finish(skill, goal_handle, 'abort', why, started)
-        node.commands.reset_moved()
+        ctx.commands.reset_moved()
         try:
             outcome, reason = self._run(skill, goal_handle, started)
         except Refused as refusal:
             outcome, reason = 'abort', str(refusal)
         except Exception as error:  # never leave the robot moving
-            node.get_logger().error(f'{skill}: internal error: {error!r}')
+            ctx.logger().error(f'{skill}: internal error: {error!r}')
             outcome, reason = 'abort', f'internal error: {error}'
-        if outcome != 'succeed' and node.commands.moved:
-            node.commands.stop_motion()
-        node.claim.release()
+        if outcome != 'succeed' and ctx.commands.moved:
+            ctx.commands.stop_motion()
+        ctx.claim.release()
         return self._finish(skill, goal_handle, outcome, reason, started)
 
     def _finish(self, skill, goal_handle, outcome, reason, started):
         result = SKILL_TYPES[skill].Result()
         result.success = outcome == 'succeed'
         result.reason = reason
-        elapsed = max(0.0, self.node.now() - started)
+        elapsed = max(0.0, self.ctx.now() - started)
         result.duration = DurationMsg(sec=int(elapsed),
                                       nanosec=int((elapsed - int(elapsed)) * 1e9))
         if outcome == 'succeed':
@@ -89,9 +89,9 @@ class SkillActionServers:
             goal_handle.abort()
         text = f'{skill}: {outcome} after {elapsed:.1f} s' + (f' ({reason})' if reason else '')
         if result.success:
-            self.node.get_logger().info(text)
+            self.ctx.logger().info(text)
         else:
-            self.node.get_logger().warning(text)
+            self.ctx.logger().warning(text)
         return result
 
     def _run(self, skill, goal_handle, started):
@@ -107,11 +107,11 @@ class SkillActionServers:
             return 'cancel', 'canceled'
         if not goal_handle.is_active:
             return 'abort', 'goal no longer active'
-        late = timeout_reason(self.node.now() - started,
-                              self.node.param('timeout') if limit_s is None else limit_s)
+        late = timeout_reason(self.ctx.now() - started,
+                              self.ctx.param('timeout') if limit_s is None else limit_s)
         if late:
             return 'abort', late
-        if not rclpy.ok(context=self.node.context):
+        if not rclpy.ok(context=self.ctx.ros.context):
             return 'abort', 'shutting down'
         return None
 
@@ -122,59 +122,59 @@ class SkillActionServers:
         goal_handle.publish_feedback(fb)
 
     def _sleep_period(self):
-        sleep_on_clock(1.0 / self.node.param('control_rate'), self.node.now)
+        sleep_on_clock(1.0 / self.ctx.param('control_rate'), self.ctx.now)
 
     # -- the two kinds of motion -----------------------------------------------------------
     def _drive(self, skill, goal_handle, started, plan, progress_of, head_q=None):
         """Track a base plan (OrbitPlan) on /odom. Returns None or (outcome, reason).
         `head_q`: (joints, cube height) to keep the camera on the cube while driving."""
-        node = self.node
+        ctx = self.ctx
         tracker = OrbitTracker(
-            plan, node.motion_planner.config.base,
-            yaw_tolerance=np.radians(node.param('orbit_yaw_tolerance_deg')),
-            position_tolerance=node.param('orbit_position_tolerance'),
-            settle_time=max(node.param('settle_timeout'), 0.5))
-        problem = node.commands.base_listener_problem()
+            plan, ctx.motion_planner.config.base,
+            yaw_tolerance=np.radians(ctx.param('orbit_yaw_tolerance_deg')),
+            position_tolerance=ctx.param('orbit_position_tolerance'),
+            settle_time=max(ctx.param('settle_timeout'), 0.5))
+        problem = ctx.commands.base_listener_problem()
         if problem:
             return 'abort', f'the base cannot be driven: {problem}'
-        t0 = node.now()
+        t0 = ctx.now()
         feedback = FeedbackThrottle()
-        gap = OdometryGap(node.param('state_wait_timeout'))
+        gap = OdometryGap(ctx.param('state_wait_timeout'))
         held_at = None
         while True:
             stop = self._check_goal(goal_handle, started)
             if stop:
                 return stop
-            pose = node.state.base_pose(node.param('max_state_age'), required=False)
+            pose = ctx.state.base_pose(ctx.param('max_state_age'), required=False)
             step = gap.update(pose is not None)
             if step == 'abort':
-                node.commands.stop_base()
+                ctx.commands.stop_base()
                 return 'abort', gap.reason()
             if step == 'stop':   # late odometry: stand still, the plan paused, and wait
-                node.commands.stop_base()
-                held_at = node.now()
-                node.get_logger().warning(
+                ctx.commands.stop_base()
+                held_at = ctx.now()
+                ctx.logger().warning(
                     f'{skill}: /odom is late; the base waits for it '
                     f'(up to {gap.max_wait_s:.1f} s)', throttle_duration_sec=5.0)
             if gap.holding:
                 self._sleep_period()
                 continue
             if step == 'resume':
-                t0 += node.now() - held_at
-            t = node.now() - t0
+                t0 += ctx.now() - held_at
+            t = ctx.now() - t0
             v, w, phase, done, ok = tracker.command(t, pose)
             if done:
-                node.commands.stop_base()
+                ctx.commands.stop_base()
                 if ok:
                     return None
                 b, h, r = tracker.final_errors(pose)
                 return 'abort', (f'the base did not settle: bearing {np.degrees(b):.1f} deg, '
                                  f'heading {np.degrees(h):.1f} deg, radius {100 * r:.1f} cm off')
-            node.commands.velocity(v, w)
+            ctx.commands.velocity(v, w)
             if head_q is not None:
                 cube_base = point_odom_to_base(pose, np.array([*plan.cube_xy, head_q[1]]))
-                q = node.state.latest_joints()
-                node.commands.aim_head(q if q is not None else head_q[0], cube_base)
+                q = ctx.state.latest_joints()
+                ctx.commands.aim_head(q if q is not None else head_q[0], cube_base)
             if feedback.due(t):
                 done_s = min(tracker.plan_time, plan.duration)
                 self._feedback(skill, goal_handle, phase,
@@ -185,49 +185,49 @@ class SkillActionServers:
               pressing=False):
         """Send one phase trajectory and wait for it to end and the joints to arrive
         (`pressing`: a phase whose hands press into the cube, contact_goal_tolerance)."""
-        node = self.node
-        tolerance = node.param('contact_goal_tolerance' if pressing else 'goal_tolerance')
-        t0 = node.commands.send_trajectory(trajectory, node.param('trajectory_start_delay'),
-                                           tolerance, node.param('settle_timeout'))
+        ctx = self.ctx
+        tolerance = ctx.param('contact_goal_tolerance' if pressing else 'goal_tolerance')
+        t0 = ctx.commands.send_trajectory(trajectory, ctx.param('trajectory_start_delay'),
+                                           tolerance, ctx.param('settle_timeout'))
         feedback = FeedbackThrottle()
-        by_action = node.commands.by_action
+        by_action = ctx.commands.by_action
         arrival = ArrivalCheck(name, trajectory.joint_names, trajectory.end, trajectory.duration,
-                               tolerance, node.param('settle_timeout'))
-        idx = [node.kin.joint_index(n) for n in trajectory.joint_names]
+                               tolerance, ctx.param('settle_timeout'))
+        idx = [ctx.kin.joint_index(n) for n in trajectory.joint_names]
         while True:
             stop = self._check_goal(goal_handle, started, limit_s)
             if stop:
                 return stop
-            t = node.now() - t0
+            t = ctx.now() - t0
             if feedback.due(t):
                 frac = min(max(t, 0.0), trajectory.duration) / max(trajectory.duration, 1e-6)
                 self._feedback(skill, goal_handle, name, progress_of(frac))
             if by_action:
                 # The controllers judge arrival (goal tolerance, goal_time_tolerance).
-                outcome = node.commands.trajectory_outcome()
+                outcome = ctx.commands.trajectory_outcome()
                 if outcome is not None:
                     ok, reason = outcome
                     return None if ok else ('abort', f'{name}: {reason}')
             elif arrival.ended(t):
-                done, reason = arrival.check(t, node.joints()[idx])
+                done, reason = arrival.check(t, ctx.joints()[idx])
                 if done:
                     return ('abort', reason) if reason else None
             self._sleep_period()
 
     # -- the skills ------------------------------------------------------------------------
     def _run_orbit(self, goal_handle, goal, started):
-        node = self.node
+        ctx = self.ctx
         angle = float(goal.angle_deg)
-        cube_base, cube_odom = node.cube()
-        q = node.joints()
-        pose = node.base_pose()
-        radius = goal.radius if goal.radius > 0 else node.param('orbit_radius')
-        with node.plan_lock:
+        cube_base, cube_odom = ctx.cube()
+        q = ctx.joints()
+        pose = ctx.base_pose()
+        radius = goal.radius if goal.radius > 0 else ctx.param('orbit_radius')
+        with ctx.plan_lock:
             try:
-                plan = node.motion_planner.orbit_plan(angle, pose, cube_base, radius)
+                plan = ctx.motion_planner.orbit_plan(angle, pose, cube_base, radius)
             except (PlanError, ValueError) as error:
                 raise Refused(f'refused: {error}') from error
-            home = node.motion_planner.go_home(q, look=cube_base)
+            home = ctx.motion_planner.go_home(q, look=cube_base)
         total = plan.duration + (home.duration if home is not None else 0.0)
         done = 0.0
         if home is not None:
@@ -238,28 +238,28 @@ class SkillActionServers:
             done = home.duration
         stop = self._drive('orbit', goal_handle, started, plan,
                            lambda f: (done + f * plan.duration) / total,
-                           head_q=(node.joints(), cube_odom[2]))
+                           head_q=(ctx.joints(), cube_odom[2]))
         if stop:
             return stop
         self._feedback('orbit', goal_handle, 'stroke', 1.0)
         return 'succeed', ''
 
     def _run_manual(self, skill, goal_handle, overrides, started):
-        node = self.node
-        cube_base, cube_odom = node.cube()
-        q = node.joints()
-        with node.plan_lock:
-            needed, ok, reason, cube_after = node.motion_planner.base_approach(cube_base)
+        ctx = self.ctx
+        cube_base, cube_odom = ctx.cube()
+        q = ctx.joints()
+        with ctx.plan_lock:
+            needed, ok, reason, cube_after = ctx.motion_planner.base_approach(cube_base)
             if not ok:
                 raise Refused(f'refused: {reason}')
             # Check the arm plan where the arms will work before moving anything.
-            plan = node.motion_planner.plan(skill, q, cube_after, **overrides)
-            config = node.motion_planner.config
+            plan = ctx.motion_planner.plan(skill, q, cube_after, **overrides)
+            config = ctx.motion_planner.config
         if not plan.ok:
             raise Refused(f'refused: {plan.reason}')
         base_plan = None
         if needed:
-            base_plan = plan_base_approach(node.base_pose(), cube_odom[:2],
+            base_plan = plan_base_approach(ctx.base_pose(), cube_odom[:2],
                                            config.manipulation_distance, config.base)
         total = plan.duration + (base_plan.duration if base_plan is not None else 0.0)
         done = 0.0
@@ -269,10 +269,10 @@ class SkillActionServers:
             if stop:
                 return self._retreat(skill, goal_handle, cube_base, stop)
             done = base_plan.duration
-            cube_base = point_odom_to_base(node.base_pose(), cube_odom)
-            q = node.joints()
-            with node.plan_lock:
-                plan = node.motion_planner.plan(skill, q, cube_base, **overrides)
+            cube_base = point_odom_to_base(ctx.base_pose(), cube_odom)
+            q = ctx.joints()
+            with ctx.plan_lock:
+                plan = ctx.motion_planner.plan(skill, q, cube_base, **overrides)
             if not plan.ok:
                 return 'abort', f'after the base approach: {plan.reason}'
             total = done + plan.duration
@@ -296,17 +296,17 @@ class SkillActionServers:
         outcome, reason = stop
         if outcome != 'abort' or not goal_handle.is_active:
             return stop
-        node = self.node
-        q = node.state.latest_joints()
+        ctx = self.ctx
+        q = ctx.state.latest_joints()
         if q is None:
             return stop
-        with node.plan_lock:
-            home = node.motion_planner.go_home(q, look=cube_base)
+        with ctx.plan_lock:
+            home = ctx.motion_planner.go_home(q, look=cube_base)
         if home is None:  # the arms are home already
             return outcome, f'{reason}; arms back home'
         # Its own time limit: `stop` may itself be the skill timeout, which can be shorter.
-        limit = 2.0 * home.duration + node.param('settle_timeout') + 5.0
-        failed = self._move(skill, goal_handle, node.now(), 'recover', home, lambda f: 1.0,
+        limit = 2.0 * home.duration + ctx.param('settle_timeout') + 5.0
+        failed = self._move(skill, goal_handle, ctx.now(), 'recover', home, lambda f: 1.0,
                             limit_s=limit)
         return outcome, f'{reason}; arms {"not " if failed else ""}back home'
 

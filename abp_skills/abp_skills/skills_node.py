@@ -37,12 +37,12 @@ Service:     /abp/skills/check_feasibility (abp_msgs/srv/CheckFeasibility)
 Cancelling a goal stops the robot (zero /cmd_vel, an empty trajectory = hold on every
 controller) and ends it canceled. The parts: `skill_params` (the parameter table),
 `robot_topics` + `robot_state` (sensors in, commands out), `skill_action_servers` +
-`skill_checks` (running a goal), `feasibility_service`, `skill_claim`; the science is in
+`skill_checks` (running a goal), `feasibility_service`, `skill_claim`, which use the node
+only through a `skill_context.SkillsContext`; the science is in
 `plans`, `ik`, `collision`, `motion_profiles` and `base_motion`.
 """
 
 import sys
-import threading
 from functools import partial
 
 import rclpy
@@ -67,6 +67,7 @@ from .robot_state import RobotState
 from .robot_topics import RobotCommands, RobotInputs
 from .skill_action_servers import SkillActionServers
 from .skill_claim import SkillClaim
+from .skill_context import SkillsContext
 from .skill_params import config_from_values, skills_parameter_specs
 
 EXECUTOR_THREADS = 8   # concurrent goals, feasibility answers and sensor callbacks
@@ -87,31 +88,32 @@ class SkillsNode(ManagedNode):
         self.health = NodeHealth(self)   # declares its parameters: before the callback below
         # The motion planner owns one Pinocchio model/data (used under plan_lock); the
         # node's own forward kinematics (head aiming, estimate frames) use another (fk_lock).
-        self.kin = RobotKinematics()
-        self.motion_planner = SkillPlanner(RobotKinematics(), config_from_values(values))
-        self.plan_lock = threading.Lock()
-        self.fk_lock = threading.Lock()
+        kin = RobotKinematics()
+        # All the helpers below use of this node (skill_context).
+        self.ctx = SkillsContext(
+            ros=self, health=self.health, callback_group=ReentrantCallbackGroup(),
+            param=self.param, kin=kin, state=RobotState(self.now, kin.q_from_mapping),
+            clock_rate=ClockRate(),   # fed by /joint_states (robot_topics)
+            motion_planner=SkillPlanner(RobotKinematics(), config_from_values(values)))
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self.callback_group = ReentrantCallbackGroup()
-        self.state = RobotState(self.now, self.kin.q_from_mapping)
-        self.clock_rate = ClockRate()   # fed by /joint_states (robot_topics)
 
     def activate(self):
         skills = self._skills
-        self.inputs = RobotInputs(self)
-        self.commands = RobotCommands(self)
+        ctx = self.ctx
+        self.inputs = RobotInputs(ctx)
+        ctx.commands = RobotCommands(ctx)
 
         self._active_pub = self.create_publisher(String, names.SKILLS_ACTIVE, LATCHED)
-        self.claim = SkillClaim(self.get_fully_qualified_name(),
-                                lambda text: self._active_pub.publish(String(data=text)),
-                                self._active_publishers)
+        ctx.claim = SkillClaim(self.get_fully_qualified_name(),
+                               lambda text: self._active_pub.publish(String(data=text)),
+                               self._active_publishers)
         # In order (an exclusive group): a peer's claim and its release must not swap.
         self.health.subscribe(String, names.SKILLS_ACTIVE, self._on_skills_state,
                               LATCHED_READER, callback_group=MutuallyExclusiveCallbackGroup())
-        self.actions = SkillActionServers(self, skills)
-        self.feasibility = (FeasibilityService(self) if self._values['feasibility_service']
+        self.actions = SkillActionServers(ctx, skills)
+        self.feasibility = (FeasibilityService(ctx) if self._values['feasibility_service']
                             else None)
-        self.claim.announce()
+        ctx.claim.announce()
         hosted = [self.resolve_topic_name(names.skill_action(s)) for s in skills]
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
@@ -122,7 +124,7 @@ class SkillsNode(ManagedNode):
 
     def _on_skills_state(self, msg):
         input_checks.skills_state(msg.data)     # Rejected: not a skills state
-        changed = self.claim.on_message(msg.data)
+        changed = self.ctx.claim.on_message(msg.data)
         if changed is not None:
             # A peer's claim or release has reached this process (tests wait for this line).
             running = f'{changed["skill"]} running' if changed['skill'] else 'idle'
@@ -141,11 +143,11 @@ class SkillsNode(ManagedNode):
             config = config_from_values({**read_all(self, self._specs), **changes})
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
-        with self.plan_lock:
-            self.motion_planner = SkillPlanner(self.motion_planner.kin, config)
+        with self.ctx.plan_lock:
+            self.ctx.motion_planner = SkillPlanner(self.ctx.motion_planner.kin, config)
         return SetParametersResult(successful=True)
 
-    # -- what the servers read -------------------------------------------------------------
+    # -- what the node itself reads --------------------------------------------------------
     def now(self):
         """The node's clock (sim time under use_sim_time), s."""
         return self.get_clock().now().nanoseconds * 1e-9
@@ -153,20 +155,8 @@ class SkillsNode(ManagedNode):
     def param(self, name):
         return self.get_parameter(name).value
 
-    def joints(self):
-        return self.state.joints(self.param('max_state_age'),
-                                 first_wait_s=self.param('state_wait_timeout'))
-
-    def base_pose(self):
-        return self.state.base_pose(self.param('max_state_age'),
-                                    first_wait_s=self.param('state_wait_timeout'))
-
-    def cube(self):
-        """(cube centre in base_link now, in odom) from the latest estimate."""
-        return self.state.cube(self.param('max_estimate_age'))
-
     def stop_motion(self):
-        self.commands.stop_motion()
+        self.ctx.commands.stop_motion()
 
 
 def _stop_robot(node):

@@ -1,0 +1,80 @@
+"""The graph's long-running managed nodes, in one place: each node's name, the package
+and executable that run it, and the graphs it runs in:
+
+- `sim`: the sim bridge stands in for the robot (scripts/start_graph.sh, `sim:=true`);
+- `robot`: the same nodes without the sim bridge (`start_graph.sh --robot`, `sim:=false`);
+- `operator`: no robot and no sim, a fixed camera and a person doing the skills
+  (`start_graph.sh --operator person`, docs/OPERATOR.md).
+
+The order is the bring-up order (dependencies first): the sensors (the sim bridge's clock
+and sensors, or the camera), the robot's tf tree (robot_state), perception, the belief,
+the skills, the planner last. A graph's nodes keep this order.
+
+Python users import it (abp_bringup.lifecycle_manager, abp.launch.py, abp_bench.soak);
+scripts/start_graph.sh starts the same nodes with its own per-node arguments, and
+tests/test_graph_nodes.py fails when its `start_managed` lines differ from this list.
+`python -m abp_common.graph_nodes [--graph G]` prints `name package executable` lines.
+"""
+
+import argparse
+from typing import NamedTuple
+
+SIM, ROBOT, OPERATOR = 'sim', 'robot', 'operator'
+GRAPHS = (SIM, ROBOT, OPERATOR)
+_ALL = frozenset(GRAPHS)
+_WITH_ROBOT = frozenset((SIM, ROBOT))
+
+
+class GraphNode(NamedTuple):
+    name: str
+    package: str
+    executable: str
+    graphs: frozenset   # the graphs it runs in (SIM, ROBOT, OPERATOR)
+
+    @property
+    def sim_only(self):
+        """Stands in for the robot: started in no graph that runs without the simulator."""
+        return self.graphs == {SIM}
+
+
+GRAPH = (
+    GraphNode('sim_bridge', 'abp_sim_bridge', 'sim_bridge', frozenset((SIM,))),
+    GraphNode('camera', 'abp_perception', 'camera', frozenset((OPERATOR,))),
+    GraphNode('robot_state', 'abp_description', 'robot_state', _WITH_ROBOT),
+    GraphNode('artag_detector', 'abp_perception', 'artag_detector', _ALL),
+    GraphNode('aspect_matcher', 'abp_perception', 'aspect_matcher', _ALL),
+    GraphNode('belief', 'abp_belief', 'belief', _ALL),
+    # The four action servers in one process.
+    GraphNode('skill_servers', 'abp_skills', 'skill_servers', _WITH_ROBOT),
+    GraphNode('operator_skills', 'abp_skills', 'operator_skills', frozenset((OPERATOR,))),
+    GraphNode('planner', 'abp_planner', 'planner', _ALL),
+)
+
+
+def graph_nodes(graph=SIM):
+    """The nodes of `graph` (SIM, ROBOT or OPERATOR), in bring-up order."""
+    if graph not in GRAPHS:
+        raise ValueError(f'graph must be one of {", ".join(GRAPHS)}, got {graph!r}')
+    return tuple(node for node in GRAPH if graph in node.graphs)
+
+
+GRAPH_NODE_NAMES = tuple(node.name for node in graph_nodes(SIM))
+ROBOT_NODE_NAMES = tuple(node.name for node in graph_nodes(ROBOT))
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(prog='python -m abp_common.graph_nodes',
+                                     description=__doc__.split('\n\n')[0])
+    parser.add_argument('--graph', choices=GRAPHS, default=SIM, help='which graph (default sim)')
+    args = parser.parse_args(argv)
+    for node in graph_nodes(args.graph):
+        print(node.name, node.package, node.executable)
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
+
+
+__all__ = ['GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'ROBOT', 'ROBOT_NODE_NAMES',
+           'SIM', 'GraphNode', 'graph_nodes']

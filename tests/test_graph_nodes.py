@@ -1,0 +1,74 @@
+"""One home for the graph's node list (abp_common.graph_nodes): every other place that
+names the graph's nodes agrees with it, in the same bring-up order."""
+
+import re
+import subprocess
+import sys
+
+import pytest
+
+from abp_common.graph_nodes import (
+    GRAPH,
+    GRAPH_NODE_NAMES,
+    GRAPHS,
+    OPERATOR,
+    ROBOT,
+    ROBOT_NODE_NAMES,
+    SIM,
+    graph_nodes,
+)
+from tests.helpers.manifests import REPO
+
+# Where start_graph.sh's operator graph ends and its sim/robot graph begins.
+SIM_OR_ROBOT_BLOCK = 'if [ -z "$operator" ]; then'
+
+
+def test_the_list_is_consistent():
+    assert len({node.name for node in GRAPH}) == len(GRAPH)
+    # start_graph.sh and the launch file name each node after its executable.
+    assert all(node.name == node.executable for node in GRAPH)
+    assert all(node.graphs and node.graphs <= set(GRAPHS) for node in GRAPH)
+    assert GRAPH_NODE_NAMES == tuple(n.name for n in graph_nodes(SIM))
+    assert ROBOT_NODE_NAMES == tuple(n.name for n in graph_nodes(ROBOT))
+    # The robot graph is the sim graph without what stands in for the robot.
+    assert ROBOT_NODE_NAMES == tuple(n.name for n in graph_nodes(SIM) if not n.sim_only)
+    assert [n.name for n in GRAPH if n.sim_only] == ['sim_bridge']
+    with pytest.raises(ValueError, match='graph must be one of'):
+        graph_nodes('moon')
+
+
+def start_managed(text):
+    """[(package, executable)] of the start_managed lines of a part of start_graph.sh."""
+    return re.findall(r'^\s*(?:\S+=\S+\s+)*start_managed (\w+) (\w+)', text, re.M)
+
+
+def test_start_graph_starts_the_listed_nodes_in_order():
+    script = (REPO / 'scripts' / 'start_graph.sh').read_text()
+    assert script.count(SIM_OR_ROBOT_BLOCK) == 1, 'start_graph.sh: the blocks moved'
+    operator_part, sim_part = script.split(SIM_OR_ROBOT_BLOCK)
+    expect = {graph: [(n.package, n.executable) for n in graph_nodes(graph)]
+              for graph in GRAPHS}
+    # --robot leaves out the sim-only nodes of the same lines.
+    assert start_managed(sim_part) == expect[SIM], \
+        'scripts/start_graph.sh: its sim/robot start_managed lines differ from ' \
+        'abp_common.graph_nodes'
+    assert start_managed(operator_part) == expect[OPERATOR], \
+        'scripts/start_graph.sh: its operator start_managed lines differ from ' \
+        'abp_common.graph_nodes'
+
+
+def test_the_lifecycle_manager_and_soak_use_the_list():
+    from abp_bench.soak import GRAPH_NODES as soak_nodes
+    from abp_bringup.lifecycle_manager import MANAGER_SPECS
+
+    node_names = {spec.name: spec for spec in MANAGER_SPECS}['node_names'].default
+    assert tuple(node_names) == GRAPH_NODE_NAMES
+    assert soak_nodes == {n.name: (n.package, n.executable) for n in graph_nodes(SIM)}
+
+
+@pytest.mark.parametrize('graph', GRAPHS)
+def test_the_module_prints_the_list(graph):
+    out = subprocess.run([sys.executable, '-m', 'abp_common.graph_nodes', '--graph', graph],
+                         capture_output=True, text=True, check=True).stdout
+    assert [tuple(line.split()) for line in out.splitlines()] == \
+        [(n.name, n.package, n.executable) for n in graph_nodes(graph)]

@@ -345,6 +345,10 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
     assert proc.poll() is None
 
 
+NODE_MODULES = {'artag_detector': 'abp_perception.artag_detector_node',
+                'aspect_matcher': 'abp_perception.aspect_matcher_node'}
+
+
 @pytest.mark.parametrize('name, override, expected', [
     ('artag_detector', 'dictionary:=DICT_BOGUS', 'DICT_APRILTAG_36h11'),
     ('artag_detector', 'image_transport:=theora', 'image_transport'),
@@ -358,7 +362,7 @@ def test_a_driver_frame_yuv422_and_rectified_images_give_the_right_poses(ros_pro
 def test_bad_parameters_are_refused_clearly(name, override, expected, main_in_process):
     """The executable's main() in this process (the exit code of a process start-up is
     checked once, in test_sim_bridge_node.py)."""
-    main = importlib.import_module(f'abp_perception.{name}_node').main
+    main = importlib.import_module(NODE_MODULES[name]).main
     code, stderr = main_in_process(main, '-p', override)
     assert code == 2, stderr
     assert 'configuration error' in stderr and expected in stderr

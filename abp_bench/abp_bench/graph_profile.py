@@ -82,8 +82,8 @@ class TopicMeter:
     def subscribe_all(self):
         """Subscribe to every topic there is now (call once the graph is ready)."""
         from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-        from rosgraph_msgs.msg import Clock
         from rclpy.serialization import deserialize_message
+        from rosgraph_msgs.msg import Clock
         best_effort = QoSProfile(depth=10, reliability=QoSReliabilityPolicy.BEST_EFFORT)
         for topic, types in self.node.get_topic_names_and_types():
             if topic in self._subscribed or not types or topic == '/rosout':

@@ -27,14 +27,14 @@ steps the world at `rate` Hz of simulation time, paced to `speedup` x wall time
 (`sim_timing.Pacer`), and
 publishes clock, joint states, odometry and ground truth; a render thread draws camera
 frames (scene snapshots taken by the simulation thread at `camera_rate`). The simulation
-never waits for the renderer: a frame falls due while the previous one is still being
-rendered, or sooner than `camera_max_wall_rate` allows in wall time, is skipped (not
+never waits for the renderer: a frame that falls due while the previous one is still
+being rendered, or sooner than `camera_max_wall_rate` allows in wall time, is skipped (not
 queued, not drawn; counted in /diagnostics), since the detector could not take it
 either. Joint states and odometry go out at `state_rate` and at every tick that takes a
 frame (an image always has the joint state at its stamp), /clock at most
-`clock_max_wall_rate` times per wall second and at every frame (docs/SPEED.md). Rendering stays in the render
-thread (MuJoCo's GL context belongs to the thread that rendered first): a reset's new
-camera is first used, and the old one closed, there.
+`clock_max_wall_rate` times per wall second and at every frame (docs/SPEED.md).
+Rendering stays in the render thread (MuJoCo's GL context belongs to the thread that
+rendered first): a reset's new camera is first used, and the old one closed, there.
 
 The four controllers behave as Jazzy's joint_trajectory_controller (topic and action):
 a trajectory without points, or one that leaves out some of the controller's joints, is

@@ -36,14 +36,11 @@ import tempfile
 import threading
 import time
 
+from .graph_benchmark import repo_root
 from .proc_stats import ProcSample, graph_processes, load_average, rates
 
 READY_LINE = 'graph ready'
 START_TIMEOUT_S = 180.0
-
-
-def repo_root():
-    return pathlib.Path(__file__).resolve().parents[2]
 
 
 def message_class(type_name):
@@ -181,10 +178,14 @@ def measure(args):
     meter = TopicMeter(topics=not args.no_topics)
     with tempfile.TemporaryDirectory(prefix='abp-graph-profile-') as tmp:
         started = time.monotonic()
-        proc = start_graph(args, pathlib.Path(tmp) / 'logs')
-        # Drain the script's output so that it never blocks on a full pipe.
+        try:
+            proc = start_graph(args, pathlib.Path(tmp) / 'logs')
+        except OSError:
+            meter.close()
+            raise
         try:
             ready_at = wait_ready(proc)
+            # Drain the script's output so that it never blocks on a full pipe.
             threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()
             nodes = graph_processes(proc.pid)
             meter.subscribe_all()

@@ -73,6 +73,11 @@ PARAMETERS = (
               'could not take are not rendered. A frame is also skipped (never queued) while '
               'the previous one is still being rendered: the simulation never waits for the '
               'renderer.', (0.0, 1000.0)),
+    ParamSpec('command_wait', DOUBLE, 0.15, 'While the base drives, a /cmd_vel later than '
+              'this (s of simulation time) makes the simulation wait for it, up to 0.5 s of '
+              'wall time: a machine too loaded to run the skills at the speed-up slows '
+              'simulation time instead of letting the base drive on (0 = never wait; then '
+              'only cmd_vel_timeout applies, as on a robot).', (0.0, 10.0)),
     ParamSpec('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for '
               'this long (s of simulation time).', (0.001, 60.0)),
     *BASE_COMMAND_SPECS,

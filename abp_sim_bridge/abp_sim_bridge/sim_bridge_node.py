@@ -96,6 +96,7 @@ from .controller_servers import (
 from .joint_trajectory_follower import TrajectoryError
 from .scenario import drawn_tags
 from .sim_timing import (
+    BaseCommandWait,
     CameraSchedule,
     GroundTruthSchedule,
     Pacer,
@@ -106,6 +107,7 @@ from .sim_timing import (
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
+COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
 def _stamp(ns):
@@ -155,8 +157,10 @@ class SimBridgeNode(ManagedNode):
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
         self.health = NodeHealth(self)
-        self.health.add_values(lambda: [('camera frames skipped (renderer busy or above '
-                                         'camera_max_wall_rate)', self.frames_skipped)])
+        self.health.add_values(lambda: [
+            ('camera frames skipped (renderer busy or above camera_max_wall_rate)',
+             self.frames_skipped),
+            ('late base commands waited for (command_wait)', self._command_wait.waits)])
         # The simulation is the clock the commands are stamped in: it is trusted.
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
@@ -236,6 +240,7 @@ class SimBridgeNode(ManagedNode):
         self._state_schedule = StateSchedule(values['state_rate'], start_time_ns, tick_ns)
         self._clock_limit = WallRateLimit(values['clock_max_wall_rate'])
         self._camera_limit = WallRateLimit(values['camera_max_wall_rate'])
+        self._command_wait = BaseCommandWait(values['command_wait'])
         self._event_index = 0
 
     def _on_reset(self, request, response):
@@ -319,6 +324,9 @@ class SimBridgeNode(ManagedNode):
         while not self._stop.is_set():
             sim = self.sim
             wait_s = pacer.wait_s(sim.time_ns, sim.time_ns + sim.period_ns)
+            if wait_s == 0 and self._command_wait.hold(sim.time_ns, sim.cmd, sim.cmd_time_ns,
+                                                       time.monotonic()):
+                wait_s = COMMAND_POLL_S
             if wait_s > 0:
                 self._stop.wait(wait_s)
                 continue

@@ -5,6 +5,7 @@
   factor report. The wall clock is injected, so the rules are unit-tested without sleeps.
 - `CameraSchedule`, `GroundTruthSchedule`, `StateSchedule`: which ticks (simulation time)
   may take a camera frame, and publish the ground truth, joint states and odometry.
+- `BaseCommandWait`: the simulation waits for a late base command rather than drive on.
 - `WallRateLimit`: at most so many events per wall second (camera frames, /clock), so that
   at a speed-up the graph is not flooded with what it cannot use.
 
@@ -155,6 +156,32 @@ class WallRateLimit:
         self._last = now
 
 
+class BaseCommandWait:
+    """While the base drives on a /cmd_vel, its controller (the skills) sends one every
+    control period. When the next is later than `after_s` of simulation time, the machine
+    cannot run that loop at the speed-up asked for: the simulation waits for the command
+    (`hold` True), up to `max_wall_s` of wall time per command; after that the base's
+    cmd_vel_timeout applies as on a robot. So a loaded machine slows simulation time
+    instead of letting the base drive on unsteered (at speed-up 10, 0.5 s of
+    cmd_vel_timeout is 50 ms of wall time). `after_s` 0: never waits."""
+
+    def __init__(self, after_s, max_wall_s=0.5):
+        self.after_ns = int(round(after_s * 1e9))
+        self.max_wall_s = max_wall_s
+        self._late_cmd_ns = None
+        self._since = 0.0
+        self.waits = 0          # commands waited for, since the start
+
+    def hold(self, sim_ns, cmd, cmd_time_ns, wall_now):
+        if not self.after_ns or cmd is None or not any(cmd) or \
+                sim_ns - cmd_time_ns < self.after_ns:
+            return False
+        if self._late_cmd_ns != cmd_time_ns:     # a new late command: start waiting
+            self._late_cmd_ns, self._since = cmd_time_ns, wall_now
+            self.waits += 1
+        return wall_now - self._since < self.max_wall_s
+
+
 def sim_seconds(stamp_ns, epoch_ns):
     """Simulation seconds of a command's header stamp (`epoch_ns`: the wall-clock time of
     simulation time 0 when stamps are wall time, else 0); a zero stamp means on receipt
@@ -162,5 +189,5 @@ def sim_seconds(stamp_ns, epoch_ns):
     return 0.0 if stamp_ns == 0 else (stamp_ns - epoch_ns) * 1e-9
 
 
-__all__ = ['CameraSchedule', 'GroundTruthSchedule', 'Pacer', 'StateSchedule', 'WallRateLimit',
-           'sim_seconds']
+__all__ = ['BaseCommandWait', 'CameraSchedule', 'GroundTruthSchedule', 'Pacer',
+           'StateSchedule', 'WallRateLimit', 'sim_seconds']

@@ -176,8 +176,10 @@ def test_base_follows_cmd_vel_and_clock_runs_at_speedup(ros_processes, tester_fa
     tick_ns = round(tick * 1e9)
     # Every tick's /clock and state (the defaults thin them out: test_state_clock_and_
     # frames_are_thinned_but_each_image_has_its_joint_state), so that the pacing is seen.
+    # command_wait 0: the robot's rule alone (the base stops cmd_vel_timeout after the
+    # last command); this test commands every 0.2 s, later than the skills' 20 Hz.
     proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0,
-                        clock_max_wall_rate=0.0, state_rate=50.0)
+                        clock_max_wall_rate=0.0, state_rate=50.0, command_wait=0.0)
     # A node on /clock alone: the Python executor of a node that also takes /odom and
     # /joint_states falls behind on a loaded machine, and its receipt times with it.
     c = tester_factory('clock')

@@ -5,6 +5,7 @@ report, and the camera and ground-truth schedules."""
 import pytest
 
 from abp_sim_bridge.sim_timing import (
+    BaseCommandWait,
     CameraSchedule,
     GroundTruthSchedule,
     Pacer,
@@ -161,3 +162,17 @@ def test_wall_rate_limit():
     unlimited = WallRateLimit(0.0)
     unlimited.taken(1.0)
     assert unlimited.ready(1.0)
+
+
+def test_base_command_wait_holds_for_a_late_command_up_to_its_wall_bound():
+    wait = BaseCommandWait(0.15, max_wall_s=0.5)
+    ms = 1_000_000
+    assert not wait.hold(100 * ms, (0.2, 0.0), 0, 0.0)           # on time
+    assert wait.hold(150 * ms, (0.2, 0.0), 0, 1.0)               # late: wait
+    assert wait.hold(150 * ms, (0.2, 0.0), 0, 1.4)
+    assert not wait.hold(150 * ms, (0.2, 0.0), 0, 1.5)           # waited long enough
+    assert wait.hold(400 * ms, (0.2, 0.0), 240 * ms, 2.0)        # the next late one
+    assert wait.waits == 2
+    assert not wait.hold(900 * ms, (0.0, 0.0), 0, 3.0)           # a stop: nothing to wait for
+    assert not wait.hold(900 * ms, None, None, 3.0)
+    assert not BaseCommandWait(0.0).hold(900 * ms, (0.2, 0.0), 0, 3.0)

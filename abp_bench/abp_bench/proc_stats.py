@@ -43,7 +43,10 @@ def node_name(pid):
     except OSError:
         return None
     for arg in argv[:3]:
-        parts = arg.decode(errors='replace').split('/')
+        text = arg.decode(errors='replace')
+        if ' ' in text:          # a shell's command string, not an executable's path
+            continue
+        parts = text.split('/')
         if len(parts) >= 5 and parts[-5] == 'install' and parts[-3] == 'lib':
             return parts[-1]
     return None

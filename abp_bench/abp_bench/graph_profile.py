@@ -194,10 +194,16 @@ def measure(args):
             load_before = load_average()[0]
             meter.start()
             t0 = time.monotonic()
+            # Sampled all along: at the end of an episode the nodes exit, and each node's
+            # figures are those up to its last sample.
+            after = {}
             while time.monotonic() - t0 < args.seconds and proc.poll() is None:
-                time.sleep(0.1)
+                for name, pid in nodes.items():
+                    sample = ProcSample.take(pid)
+                    if sample is not None:
+                        after[name] = (sample, time.monotonic() - t0)
+                time.sleep(0.2)
             wall = time.monotonic() - t0
-            after = {name: ProcSample.take(pid) for name, pid in nodes.items()}
             meter.stop()
             load_after, cpus = load_average()
         finally:
@@ -205,11 +211,12 @@ def measure(args):
             meter.close()
     per_node = {}
     for name in nodes:
-        if before[name] is None or after[name] is None:
+        if before[name] is None or name not in after or after[name][1] <= 0:
             continue
-        cpu, wakeups, preempted = rates(before[name], after[name], wall)
+        sample, seconds = after[name]
+        cpu, wakeups, preempted = rates(before[name], sample, seconds)
         per_node[name] = {'cpu_percent': cpu, 'wakeups_per_s': wakeups,
-                          'preempted_per_s': preempted, 'threads': after[name].threads}
+                          'preempted_per_s': preempted, 'threads': sample.threads}
     topics = {t: {'hz': n / wall, 'kbytes_per_s': b / wall / 1e3}
               for t, (n, b) in sorted(meter.counts.items())}
     lat = meter.latency.latencies_ms

@@ -1,6 +1,7 @@
 """ROS 2 wiring of the tag detector: the `artag_detector` node.
 
-Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS), with
+Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS of depth 1: a frame
+             that comes while the detector is busy replaces the waiting one), with
              `image_transport: raw` (the default), or
              camera/image_raw/compressed (sensor_msgs/CompressedImage, JPEG or PNG,
              image_transport's `compressed` convention, e.g. format
@@ -44,6 +45,12 @@ import cv2
 import numpy as np
 from geometry_msgs.msg import Point32
 from rcl_interfaces.msg import SetParametersResult
+from rclpy.qos import (
+    QoSDurabilityPolicy,
+    QoSHistoryPolicy,
+    QoSProfile,
+    QoSReliabilityPolicy,
+)
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 
 from abp_common import input_checks, names, qos
@@ -79,6 +86,12 @@ from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 from .region_search import RegionSearch
 
 THROTTLE_S = 5.0
+# Images: sensor-data QoS keeping only the newest frame. A frame that arrives while the
+# detector is busy replaces the one waiting: a queue of five (sensor data's depth) made the
+# detector work through stale frames, and the newest one waited for all of them.
+LATEST_FRAME = QoSProfile(depth=1, history=QoSHistoryPolicy.KEEP_LAST,
+                          reliability=QoSReliabilityPolicy.BEST_EFFORT,
+                          durability=QoSDurabilityPolicy.VOLATILE)
 # distortion model -> the numbers of coefficients it takes ('' = none given)
 DISTORTION_MODELS = {'plumb_bob': (0, 4, 5), 'rational_polynomial': (0, 8), '': (0,)}
 COMPRESSED_SUFFIX = '/compressed'     # image_transport's topic of the compressed transport
@@ -144,9 +157,9 @@ class ArtagDetectorNode(ManagedNode):
                                           qos.RELIABLE)
         if self.image_transport == 'compressed':
             self.health.subscribe(CompressedImage, self.image_topic,
-                                  self._on_compressed_image, qos.SENSOR_DATA)
+                                  self._on_compressed_image, LATEST_FRAME)
         else:
-            self.health.subscribe(Image, self.image_topic, self._on_image, qos.SENSOR_DATA)
+            self.health.subscribe(Image, self.image_topic, self._on_image, LATEST_FRAME)
         self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
                               qos.SENSOR_DATA)
         self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,

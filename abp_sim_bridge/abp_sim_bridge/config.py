@@ -60,6 +60,24 @@ PARAMETERS = (
     ParamSpec('ground_truth_rate', DOUBLE, 5.0, 'Rate of /abp/sim/ground_truth, Hz of '
               'simulation time (it is also published at once after every contact event and '
               'reset; 0 = only then).', (0.0, 1000.0)),
+    ParamSpec('state_rate', DOUBLE, 25.0, 'Rate of /joint_states and /odom, Hz of simulation '
+              'time (at most `rate`; every tick at `rate`): the skills control at 20 Hz. A tick '
+              'that takes a camera frame always publishes them, so an image has the joint '
+              'state at its stamp.', (1.0, 1000.0)),
+    ParamSpec('clock_max_wall_rate', DOUBLE, 50.0, 'At most this many /clock messages per '
+              'second of wall time (0 = one every tick): every node taking sim time wakes for '
+              'each, and at a speed-up one a tick is too many. Nodes then see simulation time '
+              'in steps of at most speedup / clock_max_wall_rate s.', (0.0, 10000.0)),
+    ParamSpec('camera_max_wall_rate', DOUBLE, 20.0, 'At most this many camera frames per '
+              'second of wall time (0 = no limit): at a speed-up the frames the detector '
+              'could not take are not rendered. A frame is also skipped (never queued) while '
+              'the previous one is still being rendered: the simulation never waits for the '
+              'renderer.', (0.0, 1000.0)),
+    ParamSpec('command_wait', DOUBLE, 0.15, 'While the base drives, a /cmd_vel later than '
+              'this (s of simulation time) makes the simulation wait for it, up to 0.5 s of '
+              'wall time: a machine too loaded to run the skills at the speed-up slows '
+              'simulation time instead of letting the base drive on (0 = never wait; then '
+              'only cmd_vel_timeout applies, as on a robot).', (0.0, 10.0)),
     ParamSpec('cmd_vel_timeout', DOUBLE, 0.5, 'The base stops when no /cmd_vel arrived for '
               'this long (s of simulation time).', (0.001, 60.0)),
     *BASE_COMMAND_SPECS,
@@ -263,6 +281,8 @@ def build(values):
     camera_rate = float(v['camera_rate'])
     if camera_rate > rate:
         raise ValueError(f'camera_rate ({camera_rate} Hz) must not exceed rate ({rate} Hz)')
+    if float(v['state_rate']) > rate:
+        raise ValueError(f"state_rate ({v['state_rate']} Hz) must not exceed rate ({rate} Hz)")
     gt_rate = float(v['ground_truth_rate'])
     if gt_rate > rate:
         raise ValueError(f'ground_truth_rate ({gt_rate} Hz) must not exceed rate ({rate} Hz)')

@@ -26,11 +26,15 @@ Threads: the executor (main thread) takes commands and services; a simulation th
 steps the world at `rate` Hz of simulation time, paced to `speedup` x wall time
 (`sim_timing.Pacer`), and
 publishes clock, joint states, odometry and ground truth; a render thread draws camera
-frames (scene snapshots taken by the simulation thread at `camera_rate`). When the
-renderer is still busy with the previous frame, the simulation waits: every frame is
-drawn, simulation time just runs slower than asked for. Rendering stays in the render
-thread (MuJoCo's GL context belongs to the thread that rendered first): a reset's new
-camera is first used, and the old one closed, there.
+frames (scene snapshots taken by the simulation thread at `camera_rate`). The simulation
+never waits for the renderer: a frame that falls due while the previous one is still
+being rendered, or sooner than `camera_max_wall_rate` allows in wall time, is skipped (not
+queued, not drawn; counted in /diagnostics), since the detector could not take it
+either. Joint states and odometry go out at `state_rate` and at every tick that takes a
+frame (an image always has the joint state at its stamp), /clock at most
+`clock_max_wall_rate` times per wall second and at every frame (docs/SPEED.md).
+Rendering stays in the render thread (MuJoCo's GL context belongs to the thread that
+rendered first): a reset's new camera is first used, and the old one closed, there.
 
 The four controllers behave as Jazzy's joint_trajectory_controller (topic and action):
 a trajectory without points, or one that leaves out some of the controller's joints, is
@@ -91,10 +95,19 @@ from .controller_servers import (
 )
 from .joint_trajectory_follower import TrajectoryError
 from .scenario import drawn_tags
-from .sim_timing import CameraSchedule, GroundTruthSchedule, Pacer, sim_seconds
+from .sim_timing import (
+    BaseCommandWait,
+    CameraSchedule,
+    GroundTruthSchedule,
+    Pacer,
+    StateSchedule,
+    WallRateLimit,
+    sim_seconds,
+)
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
+COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
 def _stamp(ns):
@@ -124,6 +137,8 @@ class SimBridgeNode(ManagedNode):
     def __init__(self):
         super().__init__('sim_bridge')
         self._stop = threading.Event()
+        self._render_idle = threading.Event()   # set: the render thread can take a frame
+        self.frames_skipped = 0
         self._failed = False
         self._threads = []
 
@@ -142,6 +157,10 @@ class SimBridgeNode(ManagedNode):
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
         self.health = NodeHealth(self)
+        self.health.add_values(lambda: [
+            ('camera frames skipped (renderer busy or above camera_max_wall_rate)',
+             self.frames_skipped),
+            ('late base commands waited for (command_wait)', self._command_wait.waits)])
         # The simulation is the clock the commands are stamped in: it is trusted.
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
@@ -185,6 +204,7 @@ class SimBridgeNode(ManagedNode):
         # ~/reset_world: names.RESET_WORLD for the node named sim_bridge.
         self.create_service(Trigger, '~/reset_world', self._on_reset)
         self._frames = queue.Queue(maxsize=1)
+        self._render_idle.set()
         self._stop.clear()
         self._threads = [threading.Thread(target=self._sim_loop, name='sim', daemon=True),
                          threading.Thread(target=self._render_loop, name='render',
@@ -216,6 +236,11 @@ class SimBridgeNode(ManagedNode):
         self._camera_schedule = CameraSchedule(cam.rate, start_time_ns, tick_ns)
         self._gt_schedule = GroundTruthSchedule(config.ground_truth_rate, start_time_ns,
                                                 tick_ns)
+        values = config.values
+        self._state_schedule = StateSchedule(values['state_rate'], start_time_ns, tick_ns)
+        self._clock_limit = WallRateLimit(values['clock_max_wall_rate'])
+        self._camera_limit = WallRateLimit(values['camera_max_wall_rate'])
+        self._command_wait = BaseCommandWait(values['command_wait'])
         self._event_index = 0
 
     def _on_reset(self, request, response):
@@ -299,6 +324,9 @@ class SimBridgeNode(ManagedNode):
         while not self._stop.is_set():
             sim = self.sim
             wait_s = pacer.wait_s(sim.time_ns, sim.time_ns + sim.period_ns)
+            if wait_s == 0 and self._command_wait.hold(sim.time_ns, sim.cmd, sim.cmd_time_ns,
+                                                       time.monotonic()):
+                wait_s = COMMAND_POLL_S
             if wait_s > 0:
                 self._stop.wait(wait_s)
                 continue
@@ -309,23 +337,40 @@ class SimBridgeNode(ManagedNode):
                     f'simulation runs at {factor:.2f}x wall time (speedup {pacer.speedup:g} '
                     'asked for): the machine cannot keep up')
 
+    def _take_frame(self, t_ns, wall_now):
+        """Whether this tick takes a camera frame: one is due, the renderer is free and
+        the wall-clock rate allows it. Otherwise a due frame is skipped, never queued."""
+        if not self._camera_schedule.due(t_ns):
+            return False
+        if not (self._render_idle.is_set() and self._camera_limit.ready(wall_now)):
+            self.frames_skipped += 1
+            return False
+        self._camera_limit.taken(wall_now)
+        self._render_idle.clear()
+        return True
+
     def _tick(self):
-        frame = gt = None
+        frame = gt = joints = odom = None
         started = time.perf_counter()
+        wall_now = time.monotonic()
         with self.lock:
             sim = self.sim
             sim.step()
             t_ns = sim.time_ns
             stamp = _stamp(t_ns + self._epoch_ns)
-            joints = self._joint_msg
-            joints.header.stamp = stamp
-            joints.position = sim.q.tolist()
-            joints.velocity = sim.qd.tolist()
-            odom = self._odom_msg(stamp)
-            if self._camera_schedule.due(t_ns):
+            if self._take_frame(t_ns, wall_now):
                 tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
                                   self._tag_miss_rng)
                 frame = _Frame(stamp, self.camera, self.camera.capture(sim, tags))
+            if self._state_schedule.due(t_ns, forced=frame is not None):
+                joints = self._joint_msg
+                joints.header.stamp = stamp
+                joints.position = sim.q.tolist()
+                joints.velocity = sim.qd.tolist()
+                odom = self._odom_msg(stamp)
+            send_clock = frame is not None or self._clock_limit.ready(wall_now)
+            if send_clock:
+                self._clock_limit.taken(wall_now)
             goal_ends = self._controller_actions.judge()
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
@@ -333,22 +378,18 @@ class SimBridgeNode(ManagedNode):
                 gt = self._ground_truth_msg(stamp)
         self.health.latency(time.perf_counter() - started)
         self._controller_actions.report(goal_ends)
-        if self._clock_pub is not None:
+        if self._clock_pub is not None and send_clock:
             self._clock_msg.clock = stamp
             self._clock_pub.publish(self._clock_msg)
-        self._joint_pub.publish(joints)
-        self._odom_pub.publish(odom)
+        if joints is not None:
+            self._joint_pub.publish(joints)
+            self._odom_pub.publish(odom)
         if gt is not None:
             self._gt_pub.publish(gt)
         for t_event, event in new_events:
             self.get_logger().info(f'[t={t_event * 1e-9:.2f} s] {event}')
         if frame is not None:
-            while not self._stop.is_set():
-                try:
-                    self._frames.put(frame, timeout=0.1)
-                    break
-                except queue.Full:
-                    continue
+            self._frames.put_nowait(frame)   # the slot is free: the renderer was idle
 
     def _odom_msg(self, stamp):
         """The (reused) odometry message: only the sim thread touches it."""
@@ -419,6 +460,7 @@ class SimBridgeNode(ManagedNode):
                 info.header.stamp = frame.stamp
                 self._image_pub.publish(msg)
                 self._info_pub.publish(info)
+                self._render_idle.set()
         except Exception:  # noqa: BLE001
             if self._stop.is_set() or not self.context.ok():
                 return

@@ -3,8 +3,11 @@
 - `Pacer`: simulation time against wall time at a speed-up; catching up when a tick is
   late, giving up (simulation time runs slower) when too far behind, and the real-time
   factor report. The wall clock is injected, so the rules are unit-tested without sleeps.
-- `CameraSchedule`, `GroundTruthSchedule`: which ticks (simulation time) publish a camera
-  frame and the ground truth.
+- `CameraSchedule`, `GroundTruthSchedule`, `StateSchedule`: which ticks (simulation time)
+  may take a camera frame, and publish the ground truth, joint states and odometry.
+- `BaseCommandWait`: the simulation waits for a late base command rather than drive on.
+- `WallRateLimit`: at most so many events per wall second (camera frames, /clock), so that
+  at a speed-up the graph is not flooded with what it cannot use.
 
 Simulation times are integer nanoseconds; wall times float seconds.
 """
@@ -117,6 +120,68 @@ class GroundTruthSchedule:
         return True
 
 
+class StateSchedule:
+    """Joint states and odometry at whole multiples of 1/rate of simulation time (t = 0.04,
+    0.08, ... s at 25 Hz), from the first tick after `start_ns`; a rate at or above the
+    tick rate: every tick. `due(t_ns, forced)`: `forced` (a camera frame at this tick)
+    publishes too and does not move the schedule."""
+
+    def __init__(self, rate_hz, start_ns, tick_ns):
+        self.period_ns = p = _period_ns(rate_hz)
+        self.tick_ns = tick_ns
+        self.next_ns = ((start_ns + tick_ns + p - 1) // p) * p if p else 0
+
+    def due(self, t_ns, forced=False):
+        if self.period_ns <= self.tick_ns:
+            return True
+        if t_ns < self.next_ns:
+            return forced
+        while self.next_ns <= t_ns:
+            self.next_ns += self.period_ns
+        return True
+
+
+class WallRateLimit:
+    """At most `max_hz` events per second of wall time (0: no limit). `ready(now)` says
+    whether one may happen now; `taken(now)` records that it did. Wall seconds."""
+
+    def __init__(self, max_hz):
+        self.min_gap_s = 1.0 / max_hz if max_hz > 0 else 0.0
+        self._last = None
+
+    def ready(self, now):
+        return self._last is None or now - self._last >= self.min_gap_s
+
+    def taken(self, now):
+        self._last = now
+
+
+class BaseCommandWait:
+    """While the base drives on a /cmd_vel, its controller (the skills) sends one every
+    control period. When the next is later than `after_s` of simulation time, the machine
+    cannot run that loop at the speed-up asked for: the simulation waits for the command
+    (`hold` True), up to `max_wall_s` of wall time per command; after that the base's
+    cmd_vel_timeout applies as on a robot. So a loaded machine slows simulation time
+    instead of letting the base drive on unsteered (at speed-up 10, 0.5 s of
+    cmd_vel_timeout is 50 ms of wall time). `after_s` 0: never waits."""
+
+    def __init__(self, after_s, max_wall_s=0.5):
+        self.after_ns = int(round(after_s * 1e9))
+        self.max_wall_s = max_wall_s
+        self._late_cmd_ns = None
+        self._since = 0.0
+        self.waits = 0          # commands waited for, since the start
+
+    def hold(self, sim_ns, cmd, cmd_time_ns, wall_now):
+        if not self.after_ns or cmd is None or not any(cmd) or \
+                sim_ns - cmd_time_ns < self.after_ns:
+            return False
+        if self._late_cmd_ns != cmd_time_ns:     # a new late command: start waiting
+            self._late_cmd_ns, self._since = cmd_time_ns, wall_now
+            self.waits += 1
+        return wall_now - self._since < self.max_wall_s
+
+
 def sim_seconds(stamp_ns, epoch_ns):
     """Simulation seconds of a command's header stamp (`epoch_ns`: the wall-clock time of
     simulation time 0 when stamps are wall time, else 0); a zero stamp means on receipt
@@ -124,4 +189,5 @@ def sim_seconds(stamp_ns, epoch_ns):
     return 0.0 if stamp_ns == 0 else (stamp_ns - epoch_ns) * 1e-9
 
 
-__all__ = ['CameraSchedule', 'GroundTruthSchedule', 'Pacer', 'sim_seconds']
+__all__ = ['BaseCommandWait', 'CameraSchedule', 'GroundTruthSchedule', 'Pacer',
+           'StateSchedule', 'WallRateLimit', 'sim_seconds']

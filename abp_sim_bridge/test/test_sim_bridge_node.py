@@ -151,7 +151,9 @@ def tester_factory(rclpy_context):
 
 def start_bridge(ros_processes, world, **params):
     """Start the node in `world` (rules or mujoco: each test names its world)."""
-    params = {'world': world, **params}
+    # Every tick's joint state (state_rate = rate): these tests read the state at given
+    # simulation times. The default (25 Hz and every image) has its own test.
+    params = {'world': world, 'state_rate': 50.0, **params}
     argv = [bridge_executable(), '--ros-args']
     for name, value in params.items():
         argv += ['-p', f'{name}:={value}']
@@ -181,7 +183,12 @@ def moving_runs(odom):
 def test_base_follows_cmd_vel_and_clock_ticks(ros_processes, tester_factory):
     speedup, tick, cmd_vel_timeout = 4.0, 1 / 50.0, 0.5
     tick_ns = round(tick * 1e9)
-    proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0)
+    # Every tick's /clock and state (the defaults thin them out: test_state_clock_and_
+    # frames_are_thinned_but_each_image_has_its_joint_state), so that the pacing is seen.
+    # command_wait 0: the robot's rule alone (the base stops cmd_vel_timeout after the
+    # last command); this test commands every 0.2 s, later than the skills' 20 Hz.
+    proc = start_bridge(ros_processes, world='rules', speedup=speedup, camera_rate=0.0,
+                        clock_max_wall_rate=0.0, state_rate=50.0, command_wait=0.0)
     # A node on /clock alone: the Python executor of a node that also takes /odom and
     # /joint_states falls behind on a loaded machine, and its receipt times with it.
     # How fast simulation time runs against wall time is the pacer's (test_sim_timing.py)
@@ -322,6 +329,48 @@ def test_base_follows_cmd_vel_and_clock_ticks(ros_processes, tester_factory):
     assert left == pytest.approx((v - w * 0.17) / 0.1 * duration - spin, abs=1e-6)
     assert right == pytest.approx((v + w * 0.17) / 0.1 * duration + spin, abs=1e-6)
     assert proc.poll() is None
+
+
+def test_state_clock_and_frames_are_thinned_but_each_image_has_its_joint_state(
+        ros_processes, tester_factory):
+    """At speed-up 10 (500 ticks per wall second): /clock at most clock_max_wall_rate per
+    wall second, joint states and odometry at state_rate of simulation time plus one at
+    every image, images at most camera_max_wall_rate per wall second, and every image
+    stamp is also the stamp of a joint state (the detector's camera pose at the stamp)."""
+    tick_ns, state_ns = 20_000_000, 40_000_000
+    start_bridge(ros_processes, world='rules', speedup=10.0, camera_rate=10.0,
+                 state_rate=25.0, clock_max_wall_rate=50.0, camera_max_wall_rate=20.0)
+    t = tester_factory('clock', 'joint_states', 'odom', 'image')
+    assert t.spin_until(lambda: len(t.msgs['image']) >= 2 and t.msgs['joint_states'], 60), \
+        'no images or joint states'
+    for name in t.msgs:
+        t.msgs[name].clear()
+        t.wall[name].clear()
+    assert t.spin_until(lambda: len(t.msgs['image']) >= 20, 60), 'too few images'
+    images = [ns(m.header.stamp) for m in t.msgs['image']]
+    joints = [ns(m.header.stamp) for m in t.msgs['joint_states']]
+    odom = [ns(m.header.stamp) for m in t.msgs['odom']]
+    clocks = np.array([ns(m.clock) for m in t.msgs['clock']])
+    # Frames on the camera grid (0.1 s), each with the joint state of its own tick.
+    assert all(stamp % 100_000_000 == 0 for stamp in images), images
+    # (An image is published after its joint state: the first one may have come before the
+    # lists were cleared.)
+    missing = sorted(s for s in set(images[:-1]) - set(joints) if s > joints[0])
+    assert not missing, f'images without the joint state at their stamp: {missing}'
+    assert joints == odom or set(joints[:-2]) <= set(odom), 'odometry with the joint states'
+    # Joint states: the 25 Hz grid, plus the image ticks (every 5th 50 Hz tick).
+    off_grid = [s for s in joints if s % state_ns and s not in set(images)]
+    assert not off_grid, f'joint states off the 25 Hz grid and not at an image: {off_grid}'
+    steps = np.diff(joints)
+    assert np.all(steps > 0) and np.all(steps % tick_ns == 0)
+    # /clock and images: their wall-clock caps (a slack for bursts of late delivery: the
+    # sim thread publishes them, this reader may take them in bunches).
+    wall_s = max(t.wall['clock'][-1] - t.wall['clock'][0], 1e-9)
+    assert len(clocks) <= 50.0 * wall_s * 1.3 + 5, f'{len(clocks)} /clock in {wall_s:.1f} s'
+    assert np.all(np.diff(clocks) > 0) and np.all(np.diff(clocks) % tick_ns == 0)
+    image_wall_s = t.wall['image'][-1] - t.wall['image'][0]
+    assert len(images) <= 20.0 * image_wall_s * 1.3 + 3, \
+        f'{len(images)} images in {image_wall_s:.1f} s of wall time'
 
 
 def test_joint_trajectories_are_tracked(ros_processes, tester_factory):

@@ -4,7 +4,15 @@ report, and the camera and ground-truth schedules."""
 
 import pytest
 
-from abp_sim_bridge.sim_timing import CameraSchedule, GroundTruthSchedule, Pacer, sim_seconds
+from abp_sim_bridge.sim_timing import (
+    BaseCommandWait,
+    CameraSchedule,
+    GroundTruthSchedule,
+    Pacer,
+    StateSchedule,
+    WallRateLimit,
+    sim_seconds,
+)
 
 TICK_NS = 20_000_000  # 50 Hz
 S = 1_000_000_000
@@ -131,3 +139,40 @@ def test_command_stamps_in_simulation_seconds():
     assert sim_seconds(0, 5 * S) == 0.0  # zero stamp: on receipt
     assert sim_seconds(7 * S, 5 * S) == pytest.approx(2.0)
     assert sim_seconds(3 * S, 0) == pytest.approx(3.0)
+
+
+def test_state_schedule_on_its_grid_and_at_every_forced_tick():
+    tick = 20_000_000
+    schedule = StateSchedule(25.0, 0, tick)
+    due = [k * tick for k in range(1, 16) if schedule.due(k * tick, forced=(k % 5 == 0))]
+    # 25 Hz grid (every 2nd tick) plus the camera ticks (every 5th).
+    assert due == [k * tick for k in (2, 4, 5, 6, 8, 10, 12, 14, 15)]
+    every_tick = StateSchedule(50.0, 0, tick)
+    assert all(every_tick.due(k * tick) for k in range(1, 10))
+    # A late tick publishes once and the grid goes on from there (no burst).
+    late = StateSchedule(25.0, 0, tick)
+    assert late.due(10 * tick) and not late.due(11 * tick) and late.due(12 * tick)
+
+
+def test_wall_rate_limit():
+    limit = WallRateLimit(20.0)
+    assert limit.ready(0.0)
+    limit.taken(0.0)
+    assert not limit.ready(0.049) and limit.ready(0.05)
+    unlimited = WallRateLimit(0.0)
+    unlimited.taken(1.0)
+    assert unlimited.ready(1.0)
+
+
+def test_base_command_wait_holds_for_a_late_command_up_to_its_wall_bound():
+    wait = BaseCommandWait(0.15, max_wall_s=0.5)
+    ms = 1_000_000
+    assert not wait.hold(100 * ms, (0.2, 0.0), 0, 0.0)           # on time
+    assert wait.hold(150 * ms, (0.2, 0.0), 0, 1.0)               # late: wait
+    assert wait.hold(150 * ms, (0.2, 0.0), 0, 1.4)
+    assert not wait.hold(150 * ms, (0.2, 0.0), 0, 1.5)           # waited long enough
+    assert wait.hold(400 * ms, (0.2, 0.0), 240 * ms, 2.0)        # the next late one
+    assert wait.waits == 2
+    assert not wait.hold(900 * ms, (0.0, 0.0), 0, 3.0)           # a stop: nothing to wait for
+    assert not wait.hold(900 * ms, None, None, 3.0)
+    assert not BaseCommandWait(0.0).hold(900 * ms, (0.2, 0.0), 0, 3.0)

@@ -8,11 +8,12 @@ with SIGTERM. From the logs of the run it breaks the time down per node: `up` wh
 process had imported its modules and built its node (its `waiting for a lifecycle
 manager` line), `configured` and `activated` when the lifecycle manager logged them
 (in --one-process mode every node is up when the container is). Prints one line per run
-and the medians; --json writes every figure.
+and the medians; --idle S also measures the idle graph's CPU; --json writes every figure.
 """
 
 import argparse
 import json
+import os
 import re
 import statistics
 import subprocess
@@ -29,7 +30,20 @@ LOG_LINE = re.compile(r'\[(?:INFO|WARN|ERROR)\] \[(\d+\.\d+)\] \[([^\]]+)\]: (.*
 MANAGER_STEP = re.compile(r'^(\w+): (configured|activated)$')
 
 
-def run_once(world, one_process, log_dir, timeout):
+def session_cpu_s(session):
+    """CPU seconds (user + system) used so far by the live processes of a session."""
+    total = 0
+    for stat in Path('/proc').glob('[0-9]*/stat'):
+        try:
+            fields = stat.read_text().rsplit(')', 1)[1].split()
+        except OSError:
+            continue   # gone meanwhile
+        if int(fields[3]) == session:   # field 6 of stat: the session id
+            total += int(fields[11]) + int(fields[12])   # utime, stime (clock ticks)
+    return total / os.sysconf('SC_CLK_TCK')
+
+
+def run_once(world, one_process, log_dir, timeout, idle_s=0.0):
     command = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--serve', '--no-build',
                '--world', world, '--log-dir', str(log_dir)]
     if one_process:
@@ -48,11 +62,19 @@ def run_once(world, one_process, log_dir, timeout):
                 break
             if time.monotonic() > deadline:
                 break
+        idle = None
+        if ready_s is not None and idle_s > 0:
+            # The idle graph (no goal): its processes' CPU over idle_s s of wall time,
+            # after as long again to settle.
+            time.sleep(idle_s)
+            cpu, wall = session_cpu_s(proc.pid), time.monotonic()
+            time.sleep(idle_s)
+            idle = (session_cpu_s(proc.pid) - cpu) / (time.monotonic() - wall)
     finally:
         stop_graph(proc)
     if ready_s is None:
         raise RuntimeError('no graph ready:\n' + ''.join(output[-30:]))
-    return {'ready_s': ready_s, 'nodes': breakdown(log_dir, started)}
+    return {'ready_s': ready_s, 'idle_cores': idle, 'nodes': breakdown(log_dir, started)}
 
 
 def breakdown(log_dir, started):
@@ -78,24 +100,33 @@ def main(argv=None):
     parser.add_argument('--world', choices=('rules', 'mujoco'), default='rules')
     parser.add_argument('--one-process', action='store_true')
     parser.add_argument('--timeout', type=float, default=300.0)
+    parser.add_argument('--idle', type=float, default=0.0, metavar='S',
+                        help='after graph ready, wait S s, then measure the CPU of the idle '
+                        'graph (every process of the run) over S s')
     parser.add_argument('--json', help='write every run here')
     args = parser.parse_args(argv)
     runs = []
     with tempfile.TemporaryDirectory(prefix='startup-') as tmp:
         for i in range(args.runs):
-            run = run_once(args.world, args.one_process, Path(tmp) / f'run{i}', args.timeout)
+            run = run_once(args.world, args.one_process, Path(tmp) / f'run{i}', args.timeout,
+                           args.idle)
             runs.append(run)
             steps = ', '.join(f'{n} {v.get("up", float("nan")):.1f}/'
                               f'{v.get("configured", float("nan")):.1f}/'
                               f'{v.get("activated", float("nan")):.1f}'
                               for n, v in sorted(run['nodes'].items()))
-            print(f'run {i}: graph ready {run["ready_s"]:.2f} s  (up/configured/activated: '
-                  f'{steps})', flush=True)
+            idle = ('' if run['idle_cores'] is None else
+                    f', idle {100 * run["idle_cores"]:.0f} % of a core')
+            print(f'run {i}: graph ready {run["ready_s"]:.2f} s{idle}  '
+                  f'(up/configured/activated: {steps})', flush=True)
     median = statistics.median(r['ready_s'] for r in runs)
     print(f'{args.world} world{" one process" if args.one_process else ""}: graph ready '
           f'median {median:.2f} s over {len(runs)} runs '
           f'(min {min(r["ready_s"] for r in runs):.2f}, '
           f'max {max(r["ready_s"] for r in runs):.2f})')
+    idle = [r['idle_cores'] for r in runs if r['idle_cores'] is not None]
+    if idle:
+        print(f'idle graph: median {100 * statistics.median(idle):.0f} % of one core')
     if args.json:
         Path(args.json).write_text(json.dumps({'world': args.world,
                                                'one_process': args.one_process,

@@ -49,6 +49,7 @@ from abp_common.tolerant_subscriptions import TolerantNode
 GRAPH_NODES = ('sim_bridge', 'robot_state', 'artag_detector', 'aspect_matcher', 'belief',
                'skill_servers', 'planner')
 READY_LINE = 'graph ready'
+BRINGUP_CHECK_PERIOD_S = 0.1
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}
 STATE_AFTER = {'configure': 'inactive', 'activate': 'active'}
@@ -63,7 +64,9 @@ MANAGER_SPECS = [
     ParamSpec('autostart', BOOL, True,
               'Bring the nodes up at once (true), or only watch until ~/startup is called.',
               read_only=True),
-    ParamSpec('check_period', DOUBLE, 0.5, 'Seconds between two checks of the nodes.',
+    ParamSpec('check_period', DOUBLE, 0.5,
+              'Seconds between two checks of the nodes (at most 0.1 s until the graph '
+              'was first ready).',
               (0.05, 60.0)),
     ParamSpec('service_timeout', DOUBLE, 5.0,
               "Seconds to wait for a node's endpoint_status answer, and for the answer to a "
@@ -90,7 +93,8 @@ class LifecycleManager(TolerantNode):
         self._change = {n: self.create_client(ChangeState, f'{n}/change_state')
                         for n in self.node_names}
         self._first = [n for n in self.values['activate_first'] if n in self.node_names]
-        self._settled = {}          # node -> the instance brought up (or refused) last
+        self._settled = {}
+        self._last_todo = []          # node -> the instance brought up (or refused) last
         self._ready = None
         self._was_ready = False
         self._why = 'not checked yet'
@@ -134,7 +138,10 @@ class LifecycleManager(TolerantNode):
                 if not self.context.ok():
                     return
                 self.get_logger().error(f'check failed: {type(error).__name__}: {error}')
-            self._stop.wait(self.values['check_period'])
+            # Until the graph was first ready, look again soon: a node that has just
+            # appeared, or an edge just matched, should not wait a whole check_period.
+            self._stop.wait(self.values['check_period'] if self._was_ready else
+                            min(self.values['check_period'], BRINGUP_CHECK_PERIOD_S))
 
     def _check(self):
         reports = self._reports(self.node_names)
@@ -150,6 +157,9 @@ class LifecycleManager(TolerantNode):
             reports[n]['state'], reports[n]['instance'], self._settled.get(n)) is not None]
         if not todo:
             return {}
+        if todo != self._last_todo:
+            self.get_logger().info(f'bringing up {", ".join(todo)} together')
+            self._last_todo = todo
         first_up = threading.Event()
         gated = not self._was_ready and any(
             reports.get(n, {}).get('state') != 'active' for n in self._first)

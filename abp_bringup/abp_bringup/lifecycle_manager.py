@@ -45,7 +45,8 @@ from abp_common.param_spec import BOOL, DOUBLE, STRING_ARRAY, ParamSpec
 from abp_common.parameters import declare_all
 from abp_common.tolerant_subscriptions import TolerantNode
 
-# The graph's nodes; the sim bridge's clock and sensors are activated first.
+# Dependency order: the sim bridge's clock and sensors first, then the robot's tf tree
+# (robot_state), the planner last.
 GRAPH_NODES = ('sim_bridge', 'robot_state', 'artag_detector', 'aspect_matcher', 'belief',
                'skill_servers', 'planner')
 READY_LINE = 'graph ready'

@@ -30,6 +30,7 @@ setup(
             'bag_player = abp_bringup.bag_player:main',
             'health = abp_bringup.health:main',
             'lifecycle_manager = abp_bringup.lifecycle_manager:main',
+            'graph_container = abp_bringup.graph_container:main',
         ],
     },
 )

@@ -47,15 +47,18 @@
 #                        camera x forward, z up, positive pitch looks down, in a frame on the
 #                        table below it (x towards the cube)           (default "0 0 0.4 0 45 0")
 #   --operator-terminal T  the operator's terminal device (default /dev/tty)
+#   --one-process        run the managed nodes in one process on one executor
+#                        (abp_bringup graph_container; docs/STARTUP.md): a node that dies
+#                        takes the others with it, and the container is restarted as one
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 tables=""
-respawn=1; serve=0; record_images=false
+respawn=1; serve=0; record_images=false; one_process=0
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
-usage() { sed -n '2,50p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,52p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -64,6 +67,7 @@ while [ $# -gt 0 ]; do
     --no-build) build=0; shift ;;
     --no-respawn) respawn=0; shift ;;
     --serve) serve=1; shift ;;
+    --one-process) one_process=1; shift ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
     --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
@@ -219,10 +223,25 @@ supervise() {
 # start PACKAGE EXECUTABLE [ros args...]: ros2 run where available, else the installed file.
 # The managed nodes (`start_managed`) start unconfigured: the lifecycle manager brings them
 # up in the order they were started (and brings a respawned one back).
+# With --one-process the managed nodes are not started one by one: their own parameters
+# (the -p arguments here, use_sim_time) go to a parameters file under each node's name,
+# and one graph_container runs them all (started below).
 managed=()
+container_params="$log_dir/graph_container.yaml"
+[ "$one_process" = 1 ] && : > "$container_params"
 start_managed() {
   managed+=("$2")
-  start "$@" -p autostart:=false
+  if [ "$one_process" = 0 ]; then
+    start "$@" -p autostart:=false
+    return
+  fi
+  local executable="$2"; shift 2
+  { echo "/**/$executable:"; echo "  ros__parameters:"
+    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: true"
+    while [ $# -gt 0 ]; do
+      [ "$1" = -p ] || die "start_managed: only -p name:=value arguments (got $1)"
+      echo "    ${2%%:=*}: ${2#*:=}"; shift 2
+    done; } >> "$container_params"
 }
 start() {
   local package="$1" executable="$2"; shift 2
@@ -281,6 +300,18 @@ if [ -n "$record" ]; then
 fi
 
 node_list="$(IFS=,; echo "${managed[*]}")"
+if [ "$one_process" = 1 ]; then
+  container=("$REPO/install/abp_bringup/lib/abp_bringup/graph_container")
+  command -v ros2 >/dev/null 2>&1 && container=(ros2 run abp_bringup graph_container)
+  container+=(--nodes "$node_list" --ros-args --params-file "$config" --params-file "$model_params")
+  [ -n "$params" ] && container+=(--params-file "$params")
+  container+=("${ns_args[@]}" --params-file "$container_params" -p autostart:=false)
+  : > "$log_dir/graph_container.log"
+  # One BLAS thread, as for the planner in its own process (above).
+  OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
+    supervise graph_container "$log_dir/graph_container.log" "${container[@]}" &
+  pids+=("$!")
+fi
 start abp_bringup lifecycle_manager -p "node_names:=[$node_list]"
 manager_log="$log_dir/lifecycle_manager.log"
 

@@ -72,3 +72,15 @@ def test_the_module_prints_the_list(graph):
                          capture_output=True, text=True, check=True).stdout
     assert [tuple(line.split()) for line in out.splitlines()] == \
         [(n.name, n.package, n.executable) for n in graph_nodes(graph)]
+
+
+def test_the_one_process_container_can_build_every_node():
+    """graph_container (start_graph.sh --one-process) knows how to build each graph node,
+    and each entry names a class its package really has."""
+    from abp_common.graph_nodes import GRAPH
+    from abp_bringup.graph_container import NODES
+
+    assert sorted(NODES) == sorted(node.name for node in GRAPH)
+    for name, entry in NODES.items():
+        assert callable(entry.factory()), name
+        assert all(isinstance(error, type) for error in entry.config_errors()), name

@@ -16,16 +16,22 @@ and not asked again, and a node deactivated or cleaned up by someone else stays 
 respawned node is a new instance: the manager sees it unconfigured and brings it back
 to active. A transition request or reply that DDS drops (a respawned node has not
 discovered the manager yet) is told from a slow transition by the node's own report and
-sent again. Until the graph was first ready, a node waits for the nodes before it in
-`node_names` (dependency order). With `autostart:=false` the manager only watches until
-`~/startup` (std_srvs/Trigger) is called, which also brings every node that is not
-active up again.
+sent again.
+
+Independent nodes come up together: every node that answers is configured at once (one
+thread each, so loading model sets, compiling the MuJoCo world and opening the camera
+overlap), and activated as soon as it is configured, except that until the graph was
+first ready the nodes of `activate_first` (the sim bridge: the /clock and sensors the
+others run on) are activated before any other node is. With `autostart:=false` the
+manager only watches until `~/startup` (std_srvs/Trigger) is called, which also brings
+every node that is not active up again.
 """
 
 import json
 import sys
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
@@ -43,17 +49,24 @@ from abp_common.tolerant_subscriptions import TolerantNode
 # In dependency order (abp_common.graph_nodes).
 GRAPH_NODES = GRAPH_NODE_NAMES
 READY_LINE = 'graph ready'
+BRINGUP_CHECK_PERIOD_S = 0.1
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}
 STATE_AFTER = {'configure': 'inactive', 'activate': 'active'}
 MANAGER_SPECS = [
     ParamSpec('node_names', STRING_ARRAY, list(GRAPH_NODES),
-              'The managed nodes, in the order they are configured and activated (names '
-              "relative to the manager's namespace).", read_only=True),
+              "The managed nodes (names relative to the manager's namespace); they are "
+              'configured and activated together.', read_only=True),
+    ParamSpec('activate_first', STRING_ARRAY, ['sim_bridge'],
+              'Managed nodes activated before the others at the first bring-up (the source '
+              'of /clock and the sensors); names not in node_names are ignored.',
+              read_only=True),
     ParamSpec('autostart', BOOL, True,
               'Bring the nodes up at once (true), or only watch until ~/startup is called.',
               read_only=True),
-    ParamSpec('check_period', DOUBLE, 0.5, 'Seconds between two checks of the nodes.',
+    ParamSpec('check_period', DOUBLE, 0.5,
+              'Seconds between two checks of the nodes (at most 0.1 s until the graph '
+              'was first ready).',
               (0.05, 60.0)),
     ParamSpec('service_timeout', DOUBLE, 5.0,
               "Seconds to wait for a node's endpoint_status answer, and for the answer to a "
@@ -79,7 +92,9 @@ class LifecycleManager(TolerantNode):
                         for n in self.node_names}
         self._change = {n: self.create_client(ChangeState, f'{n}/change_state')
                         for n in self.node_names}
-        self._settled = {}          # node -> the instance brought up (or refused) last
+        self._first = [n for n in self.values['activate_first'] if n in self.node_names]
+        self._settled = {}
+        self._last_todo = []          # node -> the instance brought up (or refused) last
         self._ready = None
         self._was_ready = False
         self._why = 'not checked yet'
@@ -123,26 +138,73 @@ class LifecycleManager(TolerantNode):
                 if not self.context.ok():
                     return
                 self.get_logger().error(f'check failed: {type(error).__name__}: {error}')
-            self._stop.wait(self.values['check_period'])
+            # Until the graph was first ready, look again soon: a node that has just
+            # appeared, or an edge just matched, should not wait a whole check_period.
+            self._stop.wait(self.values['check_period'] if self._was_ready else
+                            min(self.values['check_period'], BRINGUP_CHECK_PERIOD_S))
 
     def _check(self):
         reports = self._reports(self.node_names)
         if self._managing.is_set():
-            for name in self.node_names:
-                report = reports.get(name)
-                if report is not None:
-                    report = self._bring_up(name, report) or report
-                    reports[name] = report
-                if not self._was_ready and (report is None or report['state'] != 'active'):
-                    break       # first bring-up: the next nodes wait for this one
+            reports.update(self._bring_up_all(reports))
         self._update_ready(reports)
 
-    def _bring_up(self, name, report):
-        """Configure and/or activate one node instance; returns its new report."""
+    def _bring_up_all(self, reports):
+        """Bring every answering node up at once, one thread each; returns {node: new
+        report} of those asked. Before the first `graph ready` the others are activated
+        only once every node of activate_first is active."""
+        todo = [n for n in self.node_names if n in reports and next_transition(
+            reports[n]['state'], reports[n]['instance'], self._settled.get(n)) is not None]
+        if not todo:
+            return {}
+        if todo != self._last_todo:
+            self.get_logger().info(f'bringing up {", ".join(todo)} together')
+            self._last_todo = todo
+        first_up = threading.Event()
+        gated = not self._was_ready and any(
+            reports.get(n, {}).get('state') != 'active' for n in self._first)
+        if not gated:
+            first_up.set()
+        first_reports = {n: reports.get(n) for n in self._first}
+        first_left = [n for n in self._first if n in todo]
+        lock = threading.Lock()
+
+        def first_done(name, report):
+            with lock:
+                first_reports[name] = report
+                first_left.remove(name)
+                if not first_left:
+                    first_up.set()   # every first node is through: active or not
+
+        def bring_up(name):
+            report = reports[name]
+            try:
+                if name in self._first or not gated:
+                    report = self._bring_up(name, report) or report
+                    return report
+                report = self._bring_up(name, report, until='inactive') or report
+                first_up.wait()
+                if all(r is not None and r['state'] == 'active'
+                       for r in first_reports.values()):
+                    report = self._bring_up(name, report) or report
+                return report
+            finally:
+                if name in first_left:
+                    first_done(name, report)
+
+        if not first_left:
+            first_up.set()   # no first node to wait for: the others are only configured
+        with ThreadPoolExecutor(max_workers=len(todo),
+                                thread_name_prefix='bringup') as pool:
+            return dict(zip(todo, pool.map(bring_up, todo)))
+
+    def _bring_up(self, name, report, until='active'):
+        """Configure and/or activate one node instance, up to the state `until`; returns
+        its new report."""
         instance = report['instance']
         while True:
             transition = next_transition(report['state'], instance, self._settled.get(name))
-            if transition is None:
+            if transition is None or report['state'] == until:
                 if report['state'] == 'active':
                     self._settled[name] = instance
                 return report

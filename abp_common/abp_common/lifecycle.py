@@ -38,6 +38,7 @@ import uuid
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_srvs.srv import Trigger
 
@@ -67,7 +68,11 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
         self.config_errors = BASE_CONFIG_ERRORS
         self.configuration_error = None    # the last configure failure (an exception)
         self.instance = f'{os.getpid()}-{uuid.uuid4().hex[:8]}'
-        self.create_service(Trigger, ENDPOINT_STATUS, self._on_endpoint_status)
+        # Its own callback group: on a multi-threaded executor shared with other nodes
+        # (abp_bringup graph_container) a busy node's stream of messages in the default
+        # group would otherwise keep the manager's question waiting.
+        self.create_service(Trigger, ENDPOINT_STATUS, self._on_endpoint_status,
+                            callback_group=MutuallyExclusiveCallbackGroup())
 
     # -- what subclasses implement ---------------------------------------------------
     def configure(self):
@@ -200,7 +205,10 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
             ((p.topic_name, p.get_subscription_count()) for p in self.publishers))
 
     def _on_endpoint_status(self, request, response):
-        report = self.endpoint_report()
+        try:
+            report = self.endpoint_report()
+        except Exception:  # noqa: BLE001 -- an endpoint destroyed by a transition meanwhile
+            report = endpoint_report('busy', self.instance, (), ())  # ask again later
         response.success = report['state'] == 'active'
         response.message = json.dumps(report, sort_keys=True)
         return response

@@ -5,7 +5,9 @@ are (x_m, y_m, yaw_rad) arrays; 4x4 matrices are homogeneous poses.
 """
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+# scipy.spatial (0.3-0.4 s to import) is imported by the two functions that use it: most
+# nodes import this module and never call them (docs/STARTUP.md).
 
 
 def wrap_rad(angle_rad):
@@ -62,11 +64,13 @@ def rotation_from_quaternion(x, y, z, w):
     n = np.linalg.norm(q)
     if not np.isfinite(n) or n < 1e-12:
         raise ValueError('quaternion has zero or non-finite norm')
+    from scipy.spatial.transform import Rotation
     return Rotation.from_quat(q / n).as_matrix()
 
 
 def quaternion_from_rotation(rotation):
     """Unit quaternion (x, y, z, w) with w >= 0 of a 3x3 rotation matrix."""
+    from scipy.spatial.transform import Rotation
     return Rotation.from_matrix(np.asarray(rotation, dtype=float).reshape(3, 3)).as_quat(
         canonical=True)
 

@@ -18,7 +18,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-from scipy.spatial.transform import Rotation, Slerp
 
 from .frames import quaternion_from_rotation, rotation_from_quaternion
 
@@ -196,6 +195,7 @@ class PoseHistory:
 
 def interpolate(a, b, fraction):
     """4x4 pose a fraction of the way from a to b: linear translation, slerp rotation."""
+    from scipy.spatial.transform import Rotation, Slerp  # slow to import: when needed
     rotations = Rotation.from_matrix(np.stack([a[:3, :3], b[:3, :3]]))
     out = np.eye(4)
     out[:3, :3] = Slerp([0.0, 1.0], rotations)(fraction).as_matrix()

@@ -77,8 +77,8 @@ def test_the_module_prints_the_list(graph):
 def test_the_one_process_container_can_build_every_node():
     """graph_container (start_graph.sh --one-process) knows how to build each graph node,
     and each entry names a class its package really has."""
-    from abp_common.graph_nodes import GRAPH
     from abp_bringup.graph_container import NODES
+    from abp_common.graph_nodes import GRAPH
 
     assert sorted(NODES) == sorted(node.name for node in GRAPH)
     for name, entry in NODES.items():

@@ -53,6 +53,15 @@ BRINGUP_CHECK_PERIOD_S = 0.1
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}
 STATE_AFTER = {'configure': 'inactive', 'activate': 'active'}
+
+
+def transition_request(transition):
+    """The ChangeState request for `transition`, by label as well as id: a node resolves
+    a label from its current state and refuses (success false) one it cannot take there,
+    where an id alone that is not valid in its state (a request sent again after the
+    first did its work) makes rclpy's LifecycleNode raise in its executor and die."""
+    return ChangeState.Request(transition=Transition(id=TRANSITIONS[transition],
+                                                     label=transition))
 MANAGER_SPECS = [
     ParamSpec('node_names', STRING_ARRAY, list(GRAPH_NODES),
               "The managed nodes (names relative to the manager's namespace); they are "
@@ -237,7 +246,7 @@ class LifecycleManager(TolerantNode):
         the first has done its work is refused by the node; the caller then reads the
         state reached from the report."""
         client = self._change[name]
-        request = ChangeState.Request(transition=Transition(id=TRANSITIONS[transition]))
+        request = transition_request(transition)
         deadline = time.monotonic() + self.values['transition_timeout']
         if not client.wait_for_service(timeout_sec=min(self.values['transition_timeout'],
                                                        5.0)):

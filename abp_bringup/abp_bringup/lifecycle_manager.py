@@ -16,7 +16,9 @@ and not asked again, and a node deactivated or cleaned up by someone else stays 
 respawned node is a new instance: the manager sees it unconfigured and brings it back
 to active. A transition request or reply that DDS drops (a respawned node has not
 discovered the manager yet) is told from a slow transition by the node's own report and
-sent again. Until the graph was first ready, a node waits for the nodes before it in
+sent again. (A respawned node that no process reached at all, run 65: Fast DDS
+shared-memory ports after a SIGKILL, retired by every node at start-up; docs/RECOVERY.md.)
+Until the graph was first ready, a node waits for the nodes before it in
 `node_names` (dependency order). With `autostart:=false` the manager only watches until
 `~/startup` (std_srvs/Trigger) is called, which also brings every node that is not
 active up again.

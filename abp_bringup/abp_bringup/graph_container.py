@@ -35,7 +35,10 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
 from abp_common.lifecycle import BASE_CONFIG_ERRORS
-from abp_common.node_runner import CONFIGURATION_ERROR_EXIT_CODE
+from abp_common.node_runner import (
+    CONFIGURATION_ERROR_EXIT_CODE,
+    retire_ports_of_killed_participants,
+)
 
 
 def _skill_servers():
@@ -133,6 +136,7 @@ def main(args=None):
     argv = sys.argv if args is None else args
     wanted = parse(argv)
     signal.signal(signal.SIGINT, _interrupt_ends_the_spin)
+    retire_ports_of_killed_participants('graph_container')  # a restarted container: run 65
     rclpy.init(args=argv)
     nodes = {}
     try:

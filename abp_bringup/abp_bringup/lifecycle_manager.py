@@ -16,7 +16,8 @@ and not asked again, and a node deactivated or cleaned up by someone else stays 
 respawned node is a new instance: the manager sees it unconfigured and brings it back
 to active. A transition request or reply that DDS drops (a respawned node has not
 discovered the manager yet) is told from a slow transition by the node's own report and
-sent again.
+sent again. (A respawned node that no process reached at all, run 65: Fast DDS
+shared-memory ports after a SIGKILL, retired by every node at start-up; docs/RECOVERY.md.)
 
 Independent nodes come up together: every node that answers is configured at once (one
 thread each, so loading model sets, compiling the MuJoCo world and opening the camera

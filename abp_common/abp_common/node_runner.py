@@ -13,6 +13,11 @@ executor's (`tolerant_subscriptions`: every abp node class has them), so any exe
 works and no rclpy internals are replaced. An exception from the node's own callback
 still ends it.
 
+Before rclpy.init, the shared-memory ports of DDS participants that were killed are
+marked not ok (`shm_ports.retire_zombie_ports`): a node respawned after a SIGKILL takes
+the dead one's port numbers, and without this the processes that had sent to the dead
+one may never reach the new one (docs/RECOVERY.md).
+
 A managed node (`lifecycle.ManagedNode`) is started here: with `autostart` true (the
 default) it configures and activates before the spin, and a configuration error in its
 configure() is reported the same way (code 2); with `autostart:=false` it spins
@@ -26,8 +31,19 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 
 from .lifecycle import BASE_CONFIG_ERRORS, ManagedNode
+from .shm_ports import retire_zombie_ports
 
 CONFIGURATION_ERROR_EXIT_CODE = 2
+
+
+def retire_ports_of_killed_participants(name):
+    """Before this process's rclpy.init: mark the shared-memory ports of killed DDS
+    participants not ok (shm_ports), saying which on stderr."""
+    retired = retire_zombie_ports()
+    if retired:
+        print(f'[{name}] marked the shared-memory ports {", ".join(map(str, retired))} of '
+              'killed DDS participants not ok, so that their writers open them afresh',
+              file=sys.stderr)
 
 
 def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleThreadedExecutor,
@@ -42,6 +58,7 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     # is, even inside a finalizer (`Exception ignored in: Future.__del__`), where nothing
     # can catch it. The spin's end is enough: the interrupt itself is not raised.
     signal.signal(signal.SIGINT, _interrupt_ends_the_spin)
+    retire_ports_of_killed_participants(name)
     rclpy.init(args=args)
     node = None
     try:

@@ -7,6 +7,7 @@ process group) when the test ends, whatever its outcome.
 """
 
 import os
+import pathlib
 import random
 import select
 import signal
@@ -16,10 +17,33 @@ import time
 
 import pytest
 
+
+def _domains_in_use():
+    """ROS_DOMAIN_IDs in the environment of other processes of this machine (other test
+    sessions, their graphs): a session that shared one would talk to their nodes."""
+    used = set()
+    for proc in pathlib.Path('/proc').glob('[0-9]*'):
+        try:
+            environ = (proc / 'environ').read_bytes()
+        except OSError:
+            continue  # gone meanwhile, or not ours to read
+        for entry in environ.split(b'\0'):
+            if entry.startswith(b'ROS_DOMAIN_ID='):
+                used.add(entry[len(b'ROS_DOMAIN_ID='):].decode(errors='replace'))
+    return used
+
+
 # Chosen at import, before any test can initialise rclpy. Domain ids 1..101 keep
-# the default port mapping valid; the pid spreads concurrent sessions apart.
-_DOMAIN_ID = 1 + (os.getpid() + random.SystemRandom().randrange(101)) % 101
+# the default port mapping valid; the pid spreads concurrent sessions apart, and a
+# domain another process already uses is skipped while a free one is left.
+_start = os.getpid() + random.SystemRandom().randrange(101)
+_in_use = _domains_in_use()
+_DOMAIN_ID = next((1 + (_start + i) % 101 for i in range(101)
+                   if str(1 + (_start + i) % 101) not in _in_use), 1 + _start % 101)
 os.environ['ROS_DOMAIN_ID'] = str(_DOMAIN_ID)
+# Marks every process this session starts (they inherit it), so that a clean-up kills
+# only those, never another session's that happens to share the domain.
+os.environ['ABP_TEST_SESSION'] = f'{os.getpid()}-{random.SystemRandom().getrandbits(48):x}'
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
 os.environ.pop('ROS_LOCALHOST_ONLY', None)  # deprecated in Jazzy, conflicts with the above
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')

@@ -1,33 +1,42 @@
 """End to end over the real graph in simulation, through scripts/start_graph.sh.
 
 Every node runs as its own process over DDS (sim bridge, detector, matcher,
-belief, four skill servers, planner) and the `recognize` client drives one
-Recognize goal; the hidden cube is seeded. Eccentric twins are visually identical
-to their uniform sibling, so recognising them proves that the planner chose the
-manual action that separates them and that the sim's physics, the skills and the
-perception agree. The uniform cube's episode runs the graph under a namespace
-(`--namespace robot1`: every node, topic, service and action under /robot1).
-Each case names its world: `rules` (contact rules, flat renderer: fast) for the twins,
-`mujoco` (physics and MuJoCo camera, start_graph.sh's default) for one uniform cube.
+belief, four skill servers, planner); the hidden cube is seeded. Eccentric twins are
+visually identical to their uniform sibling, so recognising them proves that the planner
+chose the manual action that separates them and that the sim's physics, the skills and
+the perception agree. Two graphs:
+
+- `rules` world (contact rules, flat renderer: fast), under a namespace (`--namespace
+  robot1`: every node, topic, service and action under /robot1), started once with
+  `start_graph.sh --serve`: three goals in turn, a uniform cube and the twins m+z and m+y,
+  each hidden by the sim bridge's `model_index` and `reset_world` (abp_bench.soak's
+  driver, which the crash test also uses).
+- `mujoco` world (physics and MuJoCo camera, start_graph.sh's default), one uniform cube
+  through start_graph.sh's own `recognize` client: its trace, its result file, its exit
+  code and that it leaves no process behind.
+
+A node killed mid-episode is the crash test's (tests/test_crash_recovery.py: every node,
+the belief's episode must still end correct).
 """
 
 import json
-import os
 import pathlib
-import signal
-import subprocess
+import types
 
 import pytest
 
+from abp_belief.cube import MANUAL_ACTIONS
 from abp_belief.population import robot_set
-from tests.helpers.graph import graph_processes, node_log_tails, run_to_end, stop_group
+from tests.helpers.graph import graph_processes, node_log_tails, run_to_end
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 SEED = 1
-# start_graph.sh's own deadline for the Recognize goal; the test's (pytest-timeout) is
-# longer, so that a slow episode fails with its trace and its graph stopped.
+# start_graph.sh's own deadline for the Recognize goal, and the driver's per goal; the
+# test's (pytest-timeout) is longer, so that a slow episode fails with its trace and its
+# graph stopped.
 EPISODE_TIMEOUT_S = 480
-MANUAL = {'PUSH', 'LIFT', 'FLIP'}
+READY_TIMEOUT_S = 600
+NAMESPACE = 'robot1'
 
 
 def run_episode(tmp_path, object_index, extra=()):
@@ -45,68 +54,68 @@ def run_episode(tmp_path, object_index, extra=()):
     return code, json.loads(result_file.read_text()), trace
 
 
-def twin_with_mass(models, mass_name):
+def cube_with_mass(models, mass_name):
+    """The first model with this mass ('u': a uniform cube, else an eccentric twin)."""
     return next(i for i, name in enumerate(models.names) if name.endswith('/' + mass_name))
 
 
-@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
-@pytest.mark.parametrize('world, mass, namespace', [
-    ('rules', 'u', 'robot1'), ('rules', 'm+z', ''), ('rules', 'm+y', ''), ('mujoco', 'u', '')])
-def test_hidden_cube_is_recognised_through_the_whole_graph(tmp_path, world, mass, namespace):
+@pytest.mark.timeout(READY_TIMEOUT_S + 3 * EPISODE_TIMEOUT_S + 180)
+def test_cubes_are_recognised_one_goal_after_another_on_a_namespaced_rules_graph(
+        tmp_path, rclpy_context):
+    from abp_bench import soak
     models = robot_set(seed=SEED)
-    if mass == 'u':
-        index = next(i for i in range(models.num_models) if models.mass[i] == 0)
-    else:
-        index = twin_with_mass(models, mass)
-    code, result, trace = run_episode(
-        tmp_path, index, ('--world', world, *(('--namespace', namespace) if namespace else ())))
+    cubes = {mass: cube_with_mass(models, mass) for mass in ('u', 'm+z', 'm+y')}
+    log_dir = tmp_path / 'logs'
+    graph = soak.Graph(types.SimpleNamespace(
+        world='rules', seed=SEED, speedup=10.0, no_build=True, faults=False,
+        namespace=NAMESPACE), log_dir, cubes['u'])
+    driver = soak.Driver(rclpy_context, NAMESPACE)
+    failures = []
+    try:
+        assert driver.spin_until(lambda: driver.graph_ready, READY_TIMEOUT_S), \
+            graph.tail() + node_log_tails(log_dir)
+        assert f'sim (rules world) graph under /{NAMESPACE}' in graph.tail(1000), graph.tail()
+        # Every node under the namespace, none at the root (the ROS graph says so).
+        nodes = driver.node.get_node_names_and_namespaces()
+        expected = {(name, f'/{NAMESPACE}') for name in soak.GRAPH_NODES}
+        assert expected <= set(nodes), sorted(nodes)
+        assert not {n for n, ns in nodes if ns == '/'} & set(soak.GRAPH_NODES), sorted(nodes)
+        for episode, (mass, index) in enumerate(cubes.items()):
+            driver.hide(index, models.names[index], failure_seed=0)
+            record = soak.run_episode(driver, graph, episode, models.names[index],
+                                      EPISODE_TIMEOUT_S)
+            # The executed actions come on their own topic: wait until all are in.
+            driver.spin_until(lambda: len(driver.executed) >= record.get('actions', 0), 10)
+            executed = [msg.action for msg in driver.executed]
+            print(f'{mass}: {record} executed {executed}')
+            if not (record['outcome'] == 'succeeded' and record['correct']
+                    and record['answer'] == models.names[index]
+                    and record['posterior'] >= 0.95):
+                failures.append((mass, record))
+            elif len(executed) != record['actions']:
+                failures.append((mass, f'{len(executed)} executed actions heard, '
+                                 f"{record['actions']} in the result"))
+            elif mass != 'u' and not set(MANUAL_ACTIONS) & set(executed):
+                # A twin is told apart only by a manual action.
+                failures.append((mass, f'no manual action: {executed}'))
+    finally:
+        driver.close()
+        stopped = graph.stop()
+    assert not failures, f'{failures}\n{graph.tail(200)}' + node_log_tails(log_dir)
+    assert stopped, graph.tail()
+    assert not graph_processes(), 'start_graph.sh left processes behind'
+
+
+@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
+def test_a_uniform_cube_is_recognised_in_the_mujoco_world_through_start_graph(tmp_path):
+    models = robot_set(seed=SEED)
+    index = cube_with_mass(models, 'u')
+    code, result, trace = run_episode(tmp_path, index, ('--world', 'mujoco'))
     assert code == 0, trace
-    assert f'sim ({world} world)' in trace
-    if namespace:
-        assert f'graph under /{namespace}' in trace
-        planner_log = (tmp_path / f'logs-{index}' / 'planner.log').read_text()
-        assert f'[{namespace}.planner]' in planner_log
+    assert 'sim (mujoco world)' in trace
     assert result['ground_truth'] == models.names[index]
     assert result['correct'] and result['object_id'] == models.names[index], trace
     assert result['posterior'] >= 0.95
     executed = [line.split()[2] for line in trace.splitlines() if line.startswith('action ')]
     assert len(executed) == result['actions']
-    if mass != 'u':
-        # A twin is told apart only by a manual action.
-        assert MANUAL & set(executed), trace
-    assert not graph_processes(), 'start_graph.sh left processes behind'
-
-
-@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
-def test_a_node_killed_mid_episode_is_respawned_and_the_episode_ends_correct(tmp_path):
-    models = robot_set(seed=SEED)
-    index = next(i for i in range(models.num_models) if models.mass[i] == 0)
-    result_file, log_dir = tmp_path / 'result.json', tmp_path / 'logs'
-    graph = subprocess.Popen(
-        [str(REPO / 'scripts' / 'start_graph.sh'), '--no-build', '--world', 'rules', '--seed',
-         str(SEED), '--object', str(index), '--result-json', str(result_file), '--log-dir',
-         str(log_dir), '--timeout', str(EPISODE_TIMEOUT_S)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-    try:
-        trace = []
-        for line in graph.stdout:  # the event: the first action is done
-            trace.append(line)
-            if line.startswith('action 1 '):
-                break
-        belief = [pid for pid, cmdline in graph_processes(with_pids=True)
-                  if '/lib/abp_belief/belief ' in cmdline and str(log_dir) in cmdline]
-        assert len(belief) == 1, ''.join(trace)
-        os.kill(belief[0], signal.SIGKILL)
-        trace += graph.stdout.readlines()
-        graph.wait(timeout=EPISODE_TIMEOUT_S + 60)
-    finally:
-        if graph.poll() is None:
-            stop_group(graph)
-    trace = ''.join(trace)
-    assert graph.returncode == 0, trace
-    assert 'belief exited with code 137; restarting it (restart 1)' in trace
-    planner_log = (log_dir / 'planner.log').read_text()
-    assert 're-observing' in planner_log, planner_log
-    result = json.loads(result_file.read_text())
-    assert result['correct'] and result['object_id'] == models.names[index], trace
     assert not graph_processes(), 'start_graph.sh left processes behind'

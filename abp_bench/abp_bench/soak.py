@@ -1,7 +1,8 @@
 """`soak`: many Recognize goals on one running graph, and a crash test.
 
     python -m abp_bench.soak --episodes 100 [--faults] [--world rules|mujoco] [--speedup X]
-                             [--kill NODE ...] [--seed S] [--json FILE] [--no-build]
+                             [--kill NODE[+NODE] ...] [--seed S] [--namespace NS]
+                             [--json FILE] [--no-build]
 
 One `scripts/start_graph.sh --serve` graph (every node its own process over DDS, respawn
 on) stays up for the whole run. Before each episode this driver draws a hidden model from
@@ -14,9 +15,10 @@ from /proc; the report gives each node's growth from episode 10 to the last.
 Crash test (`--kill`): for each named node in turn, an episode is started, the node
 is killed with SIGKILL right after the first action is done, and the episode must end
 (correct, or aborted with a reason; a killed planner loses its goal, which the driver
-tells from the supervisor's restart line). The node must then be back (a new process,
-active again: the lifecycle manager brings a respawned node up), and the next goal must
-succeed with the right object. The first goal waits for the manager's graph_ready.
+tells from a new planner process). The node must then be back (a new process, active
+again: the lifecycle manager brings a respawned node up), and the next goal must
+succeed with the right object. `--kill a+b` kills both nodes together in one episode;
+each must be back before the next goal. The first goal waits for the manager's graph_ready.
 The crash episodes come after the `--episodes` soak episodes. At the end the graph is
 stopped with Ctrl-C and no process of it may be left.
 
@@ -113,8 +115,8 @@ def rss_kib(pids):
 
 
 class Graph:
-    """`start_graph.sh --serve` as a child process; its output is kept and scanned for the
-    supervisor's restart lines."""
+    """`start_graph.sh --serve` as a child process; its output is kept (for a failure's
+    report)."""
 
     def __init__(self, args, log_dir, start_model):
         self.log_dir = log_dir
@@ -123,12 +125,13 @@ class Graph:
                    '--object', str(start_model), '--log-dir', str(log_dir)]
         if args.no_build:
             command.append('--no-build')
+        if getattr(args, 'namespace', ''):
+            command += ['--namespace', args.namespace]
         if args.faults:
             faults = log_dir.parent / 'faults.yaml'
             faults.write_text(FAULTS_YAML)
             command += ['--params', str(faults)]
         self.lines = []
-        self.restarts = []  # (node name, monotonic time)
         self._lock = threading.Lock()
         self.proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True, start_new_session=True,
@@ -140,12 +143,6 @@ class Graph:
         for line in self.proc.stdout:
             with self._lock:
                 self.lines.append(line.rstrip('\n'))
-                if '; restarting it (restart' in line:
-                    self.restarts.append((line.split()[1], time.monotonic()))
-
-    def restarted_since(self, name, since):
-        with self._lock:
-            return any(n == name and t >= since for n, t in self.restarts)
 
     def tail(self, count=30):
         with self._lock:
@@ -176,23 +173,28 @@ class Graph:
 class Driver:
     """The ROS side: hides a cube, sends goals, watches the executed actions."""
 
-    def __init__(self, context):
+    def __init__(self, context, namespace=''):
+        """`namespace`: the graph's (start_graph.sh --namespace); '' is the root."""
+        self.namespace = namespace
+        ns = names.absolute
         self.node = rclpy.create_node('soak_driver', context=context)
         self.executor = SingleThreadedExecutor(context=context)
         self.executor.add_node(self.node)
-        self.recognize = ActionClient(self.node, Recognize, names.RECOGNIZE)
+        self.recognize = ActionClient(self.node, Recognize, ns(names.RECOGNIZE, namespace))
+        sim_bridge = ns(SIM_BRIDGE.lstrip('/'), namespace)
         self.set_params = self.node.create_client(SetParameters,
-                                                  f'{SIM_BRIDGE}/set_parameters')
-        self.reset_world = self.node.create_client(Trigger, f'{SIM_BRIDGE}/reset_world')
+                                                  f'{sim_bridge}/set_parameters')
+        self.reset_world = self.node.create_client(Trigger, f'{sim_bridge}/reset_world')
         self.truth = None
         self.executed = []
-        self.node.create_subscription(SimGroundTruth, names.GROUND_TRUTH, self._on_truth,
-                                      qos.LATCHED)
-        self.node.create_subscription(ExecutedAction, names.EXECUTED_ACTION,
+        self.node.create_subscription(SimGroundTruth, ns(names.GROUND_TRUTH, namespace),
+                                      self._on_truth, qos.LATCHED)
+        self.node.create_subscription(ExecutedAction, ns(names.EXECUTED_ACTION, namespace),
                                       self.executed.append, qos.reliable(50))
         # The lifecycle manager's verdict: every node active, their topics matched.
         self.graph_ready = False
-        self.node.create_subscription(Bool, GRAPH_READY, self._on_graph_ready, qos.LATCHED)
+        self.node.create_subscription(Bool, ns(GRAPH_READY.lstrip('/'), namespace),
+                                      self._on_graph_ready, qos.LATCHED)
 
     def _on_graph_ready(self, msg):
         self.graph_ready = msg.data
@@ -242,9 +244,15 @@ class Driver:
         self.node.destroy_node()
 
 
+def kill_group(kill):
+    """The node names of a `--kill` item ('belief' or 'belief+robot_state')."""
+    return kill.split('+') if kill else []
+
+
 def run_episode(driver, graph, index, object_id, timeout, kill=None):
-    """One Recognize goal; with `kill`, SIGKILL that node after the first action.
-    Returns the episode's record (outcome, reason, correct, actions, wall time)."""
+    """One Recognize goal; with `kill` (a node name, or names joined by '+'), SIGKILL
+    those nodes together after the first action. Returns the episode's record (outcome,
+    reason, correct, actions, posterior, wall time)."""
     record = {'episode': index, 'object': object_id, 'killed': kill}
     if not wait_until_answering(driver.recognize, driver.spin_until, 120.0):
         record.update(outcome='no server', reason='no Recognize server within 120 s',
@@ -262,15 +270,19 @@ def run_episode(driver, graph, index, object_id, timeout, kill=None):
         if not driver.spin_until(lambda: driver.executed or result.done(), timeout):
             record.update(outcome='timeout', reason='no first action', correct=False)
             return record
-        pids = graph_pids(graph.log_dir)[kill]
+        running = graph_pids(graph.log_dir)
+        pids = {name: running[name] for name in kill_group(kill)}
         killed_at = time.monotonic()
-        for pid in pids:
+        for pid in (p for group in pids.values() for p in group):
             os.kill(pid, signal.SIGKILL)
         record['killed_pids'] = pids
         record['killed_at'] = killed_at
 
-    def lost():  # a killed planner takes its goal with it: the result never comes
-        return kill == 'planner' and graph.restarted_since('planner', killed_at)
+    def lost():
+        # A killed planner takes its goal with it: the result never comes. Its new
+        # process (start_graph.sh respawns it) says the old one is gone for good.
+        return 'planner' in kill_group(kill) and any(
+            p not in pids['planner'] for p in graph_pids(graph.log_dir)['planner'])
 
     deadline = started + timeout
     driver.spin_until(lambda: result.done() or lost(), max(0.0, deadline - time.monotonic()))
@@ -286,7 +298,8 @@ def run_episode(driver, graph, index, object_id, timeout, kill=None):
             success=bool(response.result.success), reason=response.result.reason,
             answer=response.result.object_id, ground_truth=truth,
             correct=bool(response.result.success) and response.result.object_id == truth,
-            actions=int(response.result.actions_taken))
+            actions=int(response.result.actions_taken),
+            posterior=float(response.result.posterior))
     elif lost():
         record.update(outcome='lost', correct=False,
                       reason='the planner died with the goal (start_graph.sh restarted it)')
@@ -305,7 +318,8 @@ def wait_until_back(driver, graph, name, old_pids, killed_at, timeout=180.0):
     if not driver.spin_until(
             lambda: any(p not in old_pids for p in graph_pids(graph.log_dir)[name]), timeout):
         return None
-    client = driver.node.create_client(GetState, f'/{name}/get_state')
+    client = driver.node.create_client(
+        GetState, names.absolute(f'{name}/get_state', driver.namespace))
     try:
         while True:
             state = driver.call(client, GetState.Request(),
@@ -353,7 +367,7 @@ def summarise(soak, crashes, rss, stopped, leftovers):
                   '| next goal |',
                   '|---|---|---|---|---|']
         for c in crashes:
-            back = '-' if c['back_s'] is None else f"{c['back_s']:.1f}"
+            back = ', '.join('-' if s is None else f'{s:.1f}' for s in c['back_s'].values())
             after = c.get('next') or {}
             lines.append(f"| {c['killed']} | {c['outcome']}{' (correct)' if c['correct'] else ''}"
                          f" | {c.get('reason', '')} | {back} | {after.get('outcome', '-')}"
@@ -366,21 +380,36 @@ def summarise(soak, crashes, rss, stopped, leftovers):
 def crash_ok(crash):
     ended = crash['outcome'] in ('succeeded', 'aborted', 'lost') and (
         crash['correct'] or crash['outcome'] != 'succeeded')
-    return ended and crash['back_s'] is not None and bool(crash.get('next', {}).get('correct'))
+    return ended and all(s is not None for s in crash['back_s'].values()) and bool(
+        crash.get('next', {}).get('correct'))
+
+
+def kill_item(text):
+    """A `--kill` item: a node of GRAPH_NODES, or several joined by '+', each once."""
+    group = text.split('+')
+    unknown = [name for name in group if name not in GRAPH_NODES]
+    if unknown or len(set(group)) != len(group):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: give graph nodes ({', '.join(GRAPH_NODES)}), several joined by '+', "
+            'each once')
+    return text
 
 
 def parse_args(argv):
     parser = argparse.ArgumentParser(prog='soak', description=__doc__.split('\n\n')[0])
     parser.add_argument('--episodes', type=int, default=100, help='soak episodes (0: none)')
-    parser.add_argument('--kill', nargs='*', default=[], choices=sorted(GRAPH_NODES),
-                        metavar='NODE', help='crash test: kill these nodes in turn, '
-                        f"mid-episode (any of {', '.join(GRAPH_NODES)})")
+    parser.add_argument('--kill', nargs='*', default=[], type=kill_item,
+                        metavar='NODE[+NODE]', help='crash test: kill these nodes in turn, '
+                        "mid-episode; 'a+b' kills a and b together in one episode "
+                        f"(any of {', '.join(GRAPH_NODES)})")
     parser.add_argument('--world', choices=('rules', 'mujoco'), default='rules')
     parser.add_argument('--faults', action='store_true',
                         help='10%% grasp slips and missed pushes, 10%% missed tags, 2 '
                         'distractors, orbit odometry noise (graph_benchmark --faults)')
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--namespace', default='',
+                        help='run the graph under this namespace (start_graph.sh --namespace)')
     parser.add_argument('--ready-timeout', type=float, default=900.0,
                         help="seconds to wait for the lifecycle manager's graph ready")
     parser.add_argument('--episode-timeout', type=float, default=600.0,
@@ -407,7 +436,7 @@ def main(argv=None):
     # from its command line, and so hides the same cube (at its initial pose).
     start_model = int(rng.integers(models.num_models))
     graph = Graph(args, log_dir, start_model)
-    driver = Driver(context)
+    driver = Driver(context, args.namespace)
     soak, crashes, rss = [], [], []
     failed = None
     try:
@@ -425,9 +454,12 @@ def main(argv=None):
                   f"{record['object']} -> {record.get('answer', '-')} {record['outcome']} "
                   f"({record.get('reason', '')}) {record.get('wall_s', 0):.1f} s", flush=True)
             if kill:
-                record['back_s'] = wait_until_back(
-                    driver, graph, kill, record.get('killed_pids', []),
-                    record.get('killed_at', time.monotonic()))
+                # Seconds from the kill until each killed node was back (None: not back).
+                record['back_s'] = {
+                    name: wait_until_back(driver, graph, name,
+                                          record.get('killed_pids', {}).get(name, []),
+                                          record.get('killed_at', time.monotonic()))
+                    for name in kill_group(kill)}
                 crashes.append(record)
             elif crashes and crashes[-1].get('next') is None and index >= args.episodes:
                 crashes[-1]['next'] = record

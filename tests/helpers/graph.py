@@ -1,5 +1,5 @@
-"""For the system tests that start whole graphs: find the processes a test left on this
-session's ROS domain, and run a graph script to its end under a deadline that stops it
+"""For the system tests that start whole graphs: find the processes a test of this
+session left, and run a graph script to its end under a deadline that stops it
 and everything it started, instead of orphaning them.
 
 Why both: pytest-timeout ends a test by raising in its thread, and `subprocess.run` then
@@ -18,9 +18,11 @@ GRAPH_MARKERS = (b'/install/abp_', b'scripts/start_graph.sh', b'abp_bench.soak')
 
 
 def graph_processes(with_pids=False, markers=(b'/install/abp_',)):
-    """Processes on this test session's ROS domain whose command line holds one of
-    `markers` (by default: abp executables), as command lines or (pid, command line)."""
-    domain = f"ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}".encode()
+    """Processes of this test session (their environment holds its ABP_TEST_SESSION, set
+    by the root conftest) whose command line holds one of `markers` (by default: abp
+    executables), as command lines or (pid, command line). Not every process on the
+    session's ROS domain: another session may share it, and its processes are not ours."""
+    session = f"ABP_TEST_SESSION={os.environ['ABP_TEST_SESSION']}".encode()
     found = []
     for proc in pathlib.Path('/proc').glob('[0-9]*'):
         if proc.name == str(os.getpid()):
@@ -30,7 +32,7 @@ def graph_processes(with_pids=False, markers=(b'/install/abp_',)):
             environ = (proc / 'environ').read_bytes()
         except OSError:
             continue  # gone meanwhile, or not ours to read
-        if any(m in cmdline for m in markers) and domain in environ.split(b'\0'):
+        if any(m in cmdline for m in markers) and session in environ.split(b'\0'):
             text = cmdline.replace(b'\0', b' ').decode(errors='replace').strip()
             found.append((int(proc.name), text) if with_pids else text)
     return found

@@ -1,7 +1,7 @@
 """End to end over the real graph in simulation, through scripts/start_graph.sh.
 
-Every node runs as its own process over DDS (sim bridge, detector, matcher,
-belief, four skill servers, planner); the hidden cube is seeded. Eccentric twins are
+The nodes (sim bridge, robot_state, detector, matcher, belief, the skill servers,
+planner) talk over DDS; the hidden cube is seeded. Eccentric twins are
 visually identical to their uniform sibling, so recognising them proves that the planner
 chose the manual action that separates them and that the sim's physics, the skills and
 the perception agree. Two graphs:
@@ -12,8 +12,10 @@ the perception agree. Two graphs:
   each hidden by the sim bridge's `model_index` and `reset_world` (abp_bench.soak's
   driver, which the crash test also uses).
 - `mujoco` world (physics and MuJoCo camera, start_graph.sh's default), one uniform cube
-  through start_graph.sh's own `recognize` client: its trace, its result file, its exit
-  code and that it leaves no process behind.
+  through start_graph.sh's own `recognize` client, with `--one-process` (every managed node
+  in one graph_container process, issue 39; the rules graph and the crash test run one
+  process per node): its trace, its result file, its exit code, every node's parameters
+  and that it leaves no process behind.
 
 A node killed mid-episode is the crash test's (tests/test_crash_recovery.py: every node,
 the belief's episode must still end correct).
@@ -107,12 +109,23 @@ def test_cubes_are_recognised_one_goal_after_another_on_a_namespaced_rules_graph
 
 
 @pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
-def test_a_uniform_cube_is_recognised_in_the_mujoco_world_through_start_graph(tmp_path):
+def test_a_uniform_cube_is_recognised_in_the_mujoco_world_by_a_one_process_graph(tmp_path):
+    from abp_common.graph_nodes import GRAPH_NODE_NAMES
     models = robot_set(seed=SEED)
     index = cube_with_mass(models, 'u')
-    code, result, trace = run_episode(tmp_path, index, ('--world', 'mujoco'))
+    code, result, trace = run_episode(tmp_path, index, ('--world', 'mujoco', '--one-process',
+                                                        '--planner', 'abp'))
     assert code == 0, trace
     assert 'sim (mujoco world)' in trace
+    # One process: the container's log has every node's lines, no node has a log of its own;
+    # the per-node parameters (the sim bridge's world, the planner's mode) reached them.
+    log_dir = tmp_path / f'logs-{index}'
+    container_log = (log_dir / 'graph_container.log').read_text()
+    for node in GRAPH_NODE_NAMES:
+        assert f'[{node}]: active' in container_log, (node, container_log[-3000:])
+        assert not (log_dir / f'{node}.log').exists(), node
+    assert 'sim_bridge: mujoco world' in container_log, container_log[-3000:]
+    assert '(mode abp,' in container_log, container_log[-3000:]
     assert result['ground_truth'] == models.names[index]
     assert result['correct'] and result['object_id'] == models.names[index], trace
     assert result['posterior'] >= 0.95

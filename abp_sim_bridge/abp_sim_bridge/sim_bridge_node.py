@@ -62,10 +62,7 @@ import traceback
 from dataclasses import dataclass
 
 import numpy as np
-import pinocchio as pin
 import rclpy
-from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Point, Pose, Quaternion
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import MultiThreadedExecutor
@@ -82,11 +79,11 @@ from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_description import camera_intrinsics
 from abp_description.controllers import CONTROLLERS
-from abp_description.frames import quaternion_from_yaw, rot_z
 from abp_description.kinematics import RobotKinematics
 from abp_msgs.msg import SimGroundTruth
 
 from . import config as cfg
+from . import sim_messages
 from .controller_servers import (
     EXECUTOR_THREADS,
     ControllerActions,
@@ -110,22 +107,10 @@ ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
 COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
-def _stamp(ns):
-    ns = int(ns)
-    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
-
-
-def _pose_msg(position, rotation):
-    x, y, z, w = pin.Quaternion(np.asarray(rotation, dtype=float)).coeffs()
-    return Pose(position=Point(x=float(position[0]), y=float(position[1]),
-                               z=float(position[2])),
-                orientation=Quaternion(x=float(x), y=float(y), z=float(z), w=float(w)))
-
-
 @dataclass
 class _Frame:
     """What the render thread needs to draw one camera frame."""
-    stamp: Time
+    stamp: object       # builtin_interfaces/Time
     camera: object      # worlds.FlatCamera or worlds.MujocoCamera
     snapshot: tuple     # camera.capture(...)
 
@@ -168,7 +153,7 @@ class SimBridgeNode(ManagedNode):
         self._controller_actions = ControllerActions(
             self, self.config.values['stopped_velocity_tolerance'])
         self.add_on_set_parameters_callback(self._on_set_parameters)
-        self._camera_info = self._camera_info_msg()
+        self._camera_info = sim_messages.camera_info(self.intrinsics)
         self._joint_msg = JointState(name=list(self.kin.joint_names))
         self._odom = Odometry()
         self._odom.header.frame_id, self._odom.child_frame_id = ODOM_FRAME, BASE_FRAME
@@ -357,7 +342,7 @@ class SimBridgeNode(ManagedNode):
             sim = self.sim
             sim.step()
             t_ns = sim.time_ns
-            stamp = _stamp(t_ns + self._epoch_ns)
+            stamp = sim_messages.stamp(t_ns + self._epoch_ns)
             if self._take_frame(t_ns, wall_now):
                 tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
                                   self._tag_miss_rng)
@@ -367,7 +352,7 @@ class SimBridgeNode(ManagedNode):
                 joints.header.stamp = stamp
                 joints.position = sim.q.tolist()
                 joints.velocity = sim.qd.tolist()
-                odom = self._odom_msg(stamp)
+                odom = sim_messages.fill_odometry(self._odom, stamp, self.sim)
             send_clock = frame is not None or self._clock_limit.ready(wall_now)
             if send_clock:
                 self._clock_limit.taken(wall_now)
@@ -375,7 +360,7 @@ class SimBridgeNode(ManagedNode):
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
-                gt = self._ground_truth_msg(stamp)
+                gt = sim_messages.ground_truth(self.sim, self.hidden, stamp, ODOM_FRAME)
         self.health.latency(time.perf_counter() - started)
         self._controller_actions.report(goal_ends)
         if self._clock_pub is not None and send_clock:
@@ -391,51 +376,7 @@ class SimBridgeNode(ManagedNode):
         if frame is not None:
             self._frames.put_nowait(frame)   # the slot is free: the renderer was idle
 
-    def _odom_msg(self, stamp):
-        """The (reused) odometry message: only the sim thread touches it."""
-        x, y, yaw = self.sim.world.odometry_pose
-        v, w = self.sim.twist
-        msg = self._odom
-        msg.header.stamp = stamp
-        pose, twist = msg.pose.pose, msg.twist.twist
-        pose.position.x, pose.position.y = float(x), float(y)
-        _, _, pose.orientation.z, pose.orientation.w = quaternion_from_yaw(yaw)
-        twist.linear.x, twist.angular.z = float(v), float(w)
-        return msg
-
-    def _ground_truth_msg(self, stamp):
-        sim, h = self.sim, self.hidden
-        cube = sim.display_cube()
-        up, yaw = sim.discrete_state()
-        base = sim.world.robot_pose
-        msg = SimGroundTruth()
-        msg.header.stamp = stamp
-        msg.header.frame_id = ODOM_FRAME
-        msg.object_id = h.object_id
-        msg.model_index = int(h.model_index)
-        msg.face_tags = [int(t) for t in h.face_tags]
-        msg.mass_index = int(h.mass_index)
-        msg.cube_pose = _pose_msg(cube.position, cube.rotation)
-        msg.base_pose = _pose_msg([base[0], base[1], 0.0], rot_z(base[2]))
-        msg.state, msg.up_face, msg.yaw_step = 8 * up + yaw, up, yaw
-        msg.manual_actions = sim.manual_actions
-        msg.last_outcome = sim.last_outcome
-        return msg
-
     # -- the render thread ------------------------------------------------------------
-    def _camera_info_msg(self):
-        intr = self.intrinsics
-        K = intr.K
-        msg = CameraInfo()
-        msg.header.frame_id = intr.frame_id
-        msg.width, msg.height = intr.width, intr.height
-        msg.distortion_model = intr.distortion_model
-        msg.d = [float(v) for v in intr.distortion]
-        msg.k = K.ravel().tolist()
-        msg.r = np.eye(3).ravel().tolist()
-        msg.p = np.hstack([K, np.zeros((3, 1))]).ravel().tolist()
-        return msg
-
     def _render_loop(self):
         camera = None
         try:

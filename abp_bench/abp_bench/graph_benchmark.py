@@ -141,6 +141,8 @@ def parse_args(argv):
     parser.add_argument('--planner', default='cost', help='as start_graph.sh --planner')
     parser.add_argument('--seed', type=int, default=0, help='model-set seed')
     parser.add_argument('--faults', action='store_true')
+    parser.add_argument('--one-process', action='store_true',
+                        help='as start_graph.sh --one-process: the nodes in one process')
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--timeout', type=float, default=900.0, help='per episode, wall s')
     parser.add_argument('--json', default='')
@@ -248,6 +250,8 @@ def run_episode(args, index, workdir, params_file, bag=None):
         cmd += ['--params', str(params_file)]
     if args.no_build:
         cmd += ['--no-build']
+    if args.one_process:
+        cmd += ['--one-process']
     if bag is not None:
         cmd += ['--record', str(bag)]
     started = time.monotonic()
@@ -314,6 +318,11 @@ def summarise(results, latencies, observation_latencies, args):
          f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else '-'),
         ('median wall time per episode (s)',
          f"{statistics.median(r['wall_s'] for r in results):.1f}"),
+        # The issue 39 figure: simulated seconds of the episodes over their wall seconds,
+        # start-up and shut-down included.
+        ('sim s / wall s, start-up included (all episodes)',
+         f"{sum(r['elapsed_s'] for r in done) / sum(r['wall_s'] for r in done):.2f}"
+         if done else '-'),
         ('image -> belief latency, median / p95 (ms)',
          f'{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)'),
         ('image -> aspect observation latency, median / p95 (ms)',
@@ -322,7 +331,8 @@ def summarise(results, latencies, observation_latencies, args):
     ]
     title = (f"{args.world} world, {args.models} models ({tables_of(args)} tables), "
              f"planner {args.planner}, "
-             f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}")
+             f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}"
+             f"{', one process' if args.one_process else ''}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]
     return '\n'.join(lines)

@@ -138,6 +138,8 @@ def test_graph_benchmark_summary_table():
     assert '| hung (no result within the timeout) | 1 |' in table
     assert '| no result (the graph did not come up, or the goal timed out) | 1 |' in table
     assert graph_benchmark.verdict(results[-1]) == 'no result'
+    # (40 + 60 + 80 + 300) s of sim over (9 + 12 + 15 + 90) s of wall, where a goal ended.
+    assert '| sim s / wall s, start-up included (all episodes) | 3.81 |' in table
     assert '| mean actions | 10.50 |' in table
     assert ('mujoco world, robot models (corrected tables), planner cost, without fault '
             'injection') in table

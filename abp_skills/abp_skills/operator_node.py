@@ -35,7 +35,6 @@ import time
 from functools import partial
 
 import rclpy
-from builtin_interfaces.msg import Duration as DurationMsg
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.executors import MultiThreadedExecutor
@@ -45,7 +44,6 @@ from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.param_spec import DOUBLE, STRING, STRING_ARRAY, ParamSpec
 from abp_common.parameters import declare_all
-from abp_msgs.action import Flip, Lift, Orbit, Push
 from abp_msgs.srv import CheckFeasibility
 
 from .operator_prompts import (
@@ -58,8 +56,8 @@ from .operator_prompts import (
     request_for,
 )
 from .operator_terminal import OperatorTerminal, TerminalClosed
+from .skill_goals import SKILL_TYPES, end_goal
 
-SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 # How often a waiting goal looks for a cancel, s.
 POLL_S = 0.1
 
@@ -192,24 +190,8 @@ class OperatorSkillsNode(ManagedNode):
                 terminal.show(f'{answer.text}\n> ')
 
     def _finish(self, skill, goal_handle, outcome, reason, started):
-        result = SKILL_TYPES[skill].Result()
-        result.success = outcome == 'succeed'
-        result.reason = reason
-        elapsed = max(0.0, time.monotonic() - started)
-        result.duration = DurationMsg(sec=int(elapsed),
-                                      nanosec=int((elapsed - int(elapsed)) * 1e9))
-        if outcome == 'succeed':
-            goal_handle.succeed()
-        elif outcome == 'cancel' and goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-        text = f'{skill}: {outcome} after {elapsed:.1f} s' + (f' ({reason})' if reason else '')
-        if result.success:
-            self.get_logger().info(text)
-        else:
-            self.get_logger().warning(text)
-        return result
+        return end_goal(goal_handle, skill, outcome, reason, time.monotonic() - started,
+                        self.get_logger())
 
     def _param(self, name):
         return self.get_parameter(name).value

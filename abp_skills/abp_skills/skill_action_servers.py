@@ -18,11 +18,9 @@ only when it stays late for `state_wait_timeout` wall seconds does the drive abo
 
 import numpy as np
 import rclpy
-from builtin_interfaces.msg import Duration as DurationMsg
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 
 from abp_common import names
-from abp_msgs.action import Flip, Lift, Orbit, Push
 
 from .base_motion import OrbitTracker, plan_base_approach
 from .plans import PlanError
@@ -36,8 +34,7 @@ from .skill_checks import (
     sleep_on_clock,
     timeout_reason,
 )
-
-SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
+from .skill_goals import SKILL_TYPES, end_goal
 
 
 class SkillActionServers:
@@ -75,24 +72,8 @@ class SkillActionServers:
         return self._finish(skill, goal_handle, outcome, reason, started)
 
     def _finish(self, skill, goal_handle, outcome, reason, started):
-        result = SKILL_TYPES[skill].Result()
-        result.success = outcome == 'succeed'
-        result.reason = reason
-        elapsed = max(0.0, self.ctx.now() - started)
-        result.duration = DurationMsg(sec=int(elapsed),
-                                      nanosec=int((elapsed - int(elapsed)) * 1e9))
-        if outcome == 'succeed':
-            goal_handle.succeed()
-        elif outcome == 'cancel' and goal_handle.is_cancel_requested:
-            goal_handle.canceled()
-        else:
-            goal_handle.abort()
-        text = f'{skill}: {outcome} after {elapsed:.1f} s' + (f' ({reason})' if reason else '')
-        if result.success:
-            self.ctx.logger().info(text)
-        else:
-            self.ctx.logger().warning(text)
-        return result
+        return end_goal(goal_handle, skill, outcome, reason, self.ctx.now() - started,
+                        self.ctx.logger())
 
     def _run(self, skill, goal_handle, started):
         if skill == 'orbit':

@@ -49,20 +49,24 @@ def executable(package, name):
     return os.path.join(get_package_prefix(package), 'lib', package, name)
 
 
-def shm_ports(pid):
-    """The Fast DDS shared-memory files process `pid` has open (its own port, the ports it
-    sends to, its segment)."""
-    found = set()
+def fd_targets(pid):
+    """What process `pid`'s open file descriptors point to, or None if it cannot be read."""
+    targets = []
     try:
         for fd in pathlib.Path(f'/proc/{pid}/fd').iterdir():
             try:
-                target = os.readlink(fd)
+                targets.append(os.readlink(fd))
             except OSError:
                 continue
-            if target.startswith('/dev/shm/'):
-                found.add(target[len('/dev/shm/'):])
     except OSError:
-        pass
+        return None
+    return targets
+
+
+def shm_ports(pid):
+    """The Fast DDS shared-memory files process `pid` has open (its own port, the ports it
+    sends to, its segment)."""
+    found = {t[len('/dev/shm/'):] for t in fd_targets(pid) or () if t.startswith('/dev/shm/')}
     try:
         for line in pathlib.Path(f'/proc/{pid}/maps').read_text().splitlines():
             if '/dev/shm/' in line:
@@ -74,17 +78,10 @@ def shm_ports(pid):
 
 def udp_ports(pid):
     """Local UDP ports of process `pid` (its sockets' inodes, looked up in /proc/net/udp)."""
-    inodes = set()
-    try:
-        for fd in pathlib.Path(f'/proc/{pid}/fd').iterdir():
-            try:
-                target = os.readlink(fd)
-            except OSError:
-                continue
-            if target.startswith('socket:['):
-                inodes.add(target[8:-1])
-    except OSError:
+    targets = fd_targets(pid)
+    if targets is None:
         return []
+    inodes = {t[8:-1] for t in targets if t.startswith('socket:[')}
     ports = set()
     for table in ('/proc/net/udp', '/proc/net/udp6'):
         try:

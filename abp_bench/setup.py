@@ -6,6 +6,8 @@ setup(
     name=PACKAGE,
     version='0.1.0',
     packages=find_packages(exclude=['test']),
+    # The real-photo suite's photos and manifest (issue 34), read next to the module.
+    package_data={PACKAGE: ['real_photos/*']},
     data_files=[
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),

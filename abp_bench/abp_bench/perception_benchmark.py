@@ -333,11 +333,17 @@ def main(argv=None):
                         '(0: per-tag poses only, as before issue 16)')
     parser.add_argument('--realistic-frames', type=int, default=150,
                         help='frames per condition of the realistic suite')
-    parser.add_argument('--suite', choices=('standard', 'rigid', 'realistic'),
+    parser.add_argument('--suite', choices=('standard', 'rigid', 'realistic', 'real'),
                         default='standard',
                         help="standard: every table of the '## Perception' section; rigid: "
                         "only the rigid-cube pose table; realistic: the realistic-conditions "
-                        "suite against plain OpenCV (issue 16)")
+                        "suite against plain OpenCV (issue 16); real: committed real "
+                        "photographs against plain OpenCV (issue 34, real_photo_suite)")
+    parser.add_argument('--real-repeats', type=int, default=3,
+                        help='real suite: timed runs per photo and detector (median)')
+    parser.add_argument('--real-photos', nargs='+', metavar='NAME',
+                        help='real suite: only photos whose name contains one of these')
+    parser.add_argument('--json', metavar='PATH', help='real suite: results as JSON')
     parser.add_argument('--update-doc', metavar='PATH',
                         help="write the tables as the '## Perception' section of PATH")
     args = parser.parse_args(argv)
@@ -345,6 +351,9 @@ def main(argv=None):
         parser.error('--frames and --match-trials must be >= 1, --noise-frames >= 0')
     if not 0 < args.match_min < args.match_max:
         parser.error('need 0 < --match-min < --match-max')
+    if args.suite == 'real':
+        from abp_bench import real_photo_suite
+        return real_photo_suite.main(args)
 
     from abp_belief.population import full_set
     from abp_bench.scenes import SceneGenerator

@@ -141,12 +141,17 @@ def _edge_points(gray_f, a, b, cell, samples=24):
     return np.array(out).reshape(-1, 2)
 
 
+def turn(a, b):
+    """z of the cross product of two image vectors (np.cross of 2-vectors is deprecated)."""
+    return a[0] * b[1] - a[1] * b[0]
+
+
 def edge_fit_corners(gray, corners, marker_size):
     """(corners, rms_px) of the tag's outer edge: each side's sub-pixel edge points fitted
     by a line (total least squares), adjacent lines intersected; None where a side has too
     few points. An estimate independent of either detector's corner method."""
     q = np.asarray(corners, dtype=np.float64).reshape(4, 2)
-    if np.cross(q[1] - q[0], q[2] - q[1]) < 0:    # keep the inside on the normal's side
+    if turn(q[1] - q[0], q[2] - q[1]) < 0:    # keep the inside on the normal's side
         return None, None
     gray_f = gray.astype(np.float32)
     cell = side_px(q) / (marker_size + 2)

@@ -18,6 +18,7 @@ from abp_bench.real_photo_truth import (
     load_gray,
     load_manifest,
     side_px,
+    turn,
 )
 
 MANIFEST = load_manifest()
@@ -63,7 +64,7 @@ def test_truth_is_self_consistent(photo):
         assert (q >= -0.5).all() and (q[:, 0] <= w - 0.5).all() and (q[:, 1] <= h - 0.5).all()
         assert side_px(q) >= 5.0
         # ArUco order: clockwise in the image (y down), so the first turn is positive.
-        assert np.cross(q[1] - q[0], q[2] - q[1]) > 0
+        assert turn(q[1] - q[0], q[2] - q[1]) > 0
         assert t['found_by']
         # The stored bit read is what the committed file gives (corners are stored rounded to
         # 1e-3 px: cells on the threshold may flip), and it confirms the tag unless the

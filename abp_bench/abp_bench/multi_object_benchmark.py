@@ -159,7 +159,7 @@ def _scene_task(task) -> tuple:
     drawn = draw_scene(ms, seed, scene, options['objects'], options['twins'])
     cubes = drawn['cubes']
     record = {'scene': scene, 'cubes': [vars(c) for c in cubes],
-              'find_present': drawn['find_present'], 'find_absent': drawn['find_absent']}
+              'target_present': drawn['find_present'], 'target_absent': drawn['find_absent']}
     twins_of = {c.object_id: indistinguishable_models(world, c.true_model, c.initial_state)
                 for c in cubes}
     record['decidable'] = {c.object_id: bool(twins_of[c.object_id].size == 0) for c in cubes}

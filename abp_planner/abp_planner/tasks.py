@@ -131,9 +131,11 @@ class TaskMonitor:
         per_model = np.asarray(node_belief, dtype=np.float64).reshape(-1, STATES_PER_MODEL)
         marginal = per_model.sum(axis=1)
         marginal = marginal / marginal.sum()
-        models = (self.rule.twin_class(node_belief, self.task.model)
-                  if self.rule.node_class is not None else [self.task.model])
-        return float(marginal[np.asarray(models)].sum())
+        target = self.task.model
+        if self.rule.node_class is None or not marginal[target] > 0.0:
+            return float(marginal[target])  # (no mass: no twin spread to compare with)
+        models = self.rule.twin_class(node_belief, target)
+        return float(marginal[np.union1d(models, [target])].sum())
 
     # -- verdict ---------------------------------------------------------------------------
     def check(self, belief, actions: dict) -> TaskVerdict:

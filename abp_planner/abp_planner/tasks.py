@@ -9,12 +9,14 @@ per-object verdicts are the single-object ``StoppingRule``'s, with its confidenc
     action count (the rule's ``max_actions`` is per object). Done when all have.
 ``find MODEL``
     Stop as soon as one object *is* MODEL with the rule's confidence, or every object
-    is surely *not* MODEL. "Is" is the claim ``P_k(MODEL) `` (with the rule's twin
+    is surely *not* MODEL. "Is" is the claim ``P_k(MODEL)`` (with the rule's twin
     classes: the mass of the models no action can tell from MODEL) held to the same
     bound as an identification (``P(wrong) <= target_error``, with the fault margin
-    if the rule has it; ``posterior`` rules: ``> stop_posterior``); "surely not" is
-    ``1 - P_k(MODEL)`` held to it. The planner acts on the undecided object most
-    likely to be MODEL: confirming it ends the task, ruling it out raises the others.
+    if the rule has it; ``posterior`` rules: ``> stop_posterior``); "none is" is one
+    claim about the scene, ``1 - P(any) = prod_k (1 - P_k(MODEL))`` held to it (not
+    each object on its own: K objects at the bound would leave K times the error).
+    The planner acts on the object most likely to be MODEL: confirming it ends the
+    task, ruling it out lowers P(any).
 ``identify OBJECT``
     Today's single-object behaviour, on one track.
 
@@ -164,30 +166,32 @@ class TaskMonitor:
 
     def _check_find(self, belief, actions: dict) -> TaskVerdict:
         target = self.task.model
-        undecided, probability, unsure = [], [], 0
-        for object_id in belief.object_ids:
-            p = self.target_probability(belief.belief(object_id))
+        ids = list(belief.object_ids)
+        probability = np.array([self.target_probability(belief.belief(o)) for o in ids])
+        for object_id, p in zip(ids, probability):
             if self.confident(p):
                 return TaskVerdict(True, f'object {object_id} is model {target} '
                                    f'(P {p:.6f})', found_object=object_id, success=True)
-            if self.confident(1.0 - p):
-                continue
-            unsure += 1
-            # An object at its action limit stays undecided for good.
-            if actions.get(object_id, 0) < self.rule.max_actions:
-                undecided.append(object_id)
-                probability.append(p)
-        if not undecided:
-            if unsure == 0:
-                return TaskVerdict(True, f'no object is model {target}', success=True)
-            return TaskVerdict(True, f'{ACTION_LIMIT} reached: {unsure} object(s) undecided '
-                               f'about model {target}')
+        # "No object is it" is one claim about the whole scene: its error is the chance
+        # that at least one object is the model, not each object's alone (three objects
+        # at 0.002 each leave a 0.006 chance that the model is there).
+        p_any = 1.0 - float(np.prod(1.0 - probability))
+        if self.confident(1.0 - p_any):
+            return TaskVerdict(True, f'no object is model {target} (P(any) {p_any:.2e})',
+                               success=True)
+        # An object at its action limit stays as undecided as it is; one that holds no
+        # mass of the model cannot change P(any) by acting on it.
+        negligible = 1e-6 * self.rule.target_error
+        open_ids = [k for k, o in enumerate(ids)
+                    if actions.get(o, 0) < self.rule.max_actions and probability[k] > negligible]
+        if not open_ids:
+            return TaskVerdict(True, f'{ACTION_LIMIT} reached: model {target} neither found '
+                               f'nor ruled out (P(any) {p_any:.2e})')
         # The most likely carriers of the model first (ties: all of them).
-        probability = np.asarray(probability)
-        top = probability.max()
-        candidates = [o for o, p in zip(undecided, probability) if p >= top * (1 - 1e-9)]
-        return TaskVerdict(False, f'{len(undecided)} object(s) undecided about model {target}',
-                           candidates=candidates)
+        top = probability[open_ids].max()
+        candidates = [ids[k] for k in open_ids if probability[k] >= top * (1 - 1e-9)]
+        return TaskVerdict(False, f'model {target}: P(any object) {p_any:.2e}, asking '
+                           f"{', '.join(map(str, candidates))}", candidates=candidates)
 
     # -- answer ------------------------------------------------------------------------------
     def object_results(self, belief, actions: dict) -> list[ObjectResult]:

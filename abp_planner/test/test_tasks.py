@@ -68,6 +68,10 @@ def test_find_stops_when_every_object_is_surely_not_the_model(robot, rule):
     verdict = monitor.check(scene(robot, a={9: 1.0}, b={12: 0.5, 13: 0.5}), {})
     assert verdict.done and verdict.success and verdict.found_object is None
     assert 'no object is model 5' in verdict.reason
+    # Each object alone below the bound, the scene not: the model may still be there.
+    each = 1.0 - 0.6 * rule.target_error
+    verdict = monitor.check(scene(robot, a={5: 1 - each, 9: each}, b={5: 1 - each, 8: each}), {})
+    assert not verdict.done and set(verdict.candidates) == {'a', 'b'}
     # b is not identified (12 or 13) but surely not 5: identify_all would go on.
     assert not TaskMonitor(Task('identify_all'), rule).check(
         scene(robot, a={9: 1.0}, b={12: 0.5, 13: 0.5}), {}).done
@@ -81,6 +85,7 @@ def test_find_acts_on_the_most_likely_carrier(robot, rule):
     # a at its action limit: b is the one left to ask.
     verdict = monitor.check(belief, {'a': rule.max_actions})
     assert not verdict.done and verdict.candidates == ['b']
+    # c holds none of model 5: acting on it cannot help.
     verdict = monitor.check(belief, {'a': rule.max_actions, 'b': rule.max_actions})
     assert verdict.done and not verdict.success and 'action limit' in verdict.reason
 

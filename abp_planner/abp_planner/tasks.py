@@ -14,9 +14,13 @@ per-object verdicts are the single-object ``StoppingRule``'s, with its confidenc
     bound as an identification (``P(wrong) <= target_error``, with the fault margin
     if the rule has it; ``posterior`` rules: ``> stop_posterior``); "none is" is one
     claim about the scene, ``1 - P(any) = prod_k (1 - P_k(MODEL))`` held to it (not
-    each object on its own: K objects at the bound would leave K times the error).
-    The planner acts on the object most likely to be MODEL: confirming it ends the
-    task, ruling it out lowers P(any).
+    each object on its own: K objects at the bound would leave K times the error),
+    and by default with the rule's one-fault discount (``absence_fault_margin``): the
+    prior puts the model in a scene of K cubes with probability ~K/|M| only, while
+    whoever asks to find it mostly expects it there; without the discount one false
+    tag on the first view ruled the target out in 1 of 30 model-sampled scenes with
+    the target present (K = 5). The planner acts on the object most likely to be
+    MODEL: confirming it ends the task, ruling it out lowers P(any).
 ``identify OBJECT``
     Today's single-object behaviour, on one track.
 
@@ -33,7 +37,12 @@ import numpy as np
 
 from abp_belief.cube import STATES_PER_MODEL
 
-from .stopping import ACTION_LIMIT, StoppingRule, fault_discounted_error
+from .stopping import (
+    ACTION_LIMIT,
+    StoppingRule,
+    fault_discounted_error,
+    fault_likelihood_ratio,
+)
 
 TASK_KINDS = ('identify_all', 'find', 'identify')
 
@@ -114,16 +123,20 @@ class TaskVerdict:
 class TaskMonitor:
     """The stop rule and candidate objects of ``task`` under ``rule``."""
 
-    def __init__(self, task: Task, rule: StoppingRule):
+    def __init__(self, task: Task, rule: StoppingRule, absence_fault_margin: bool = True):
         self.task = task
         self.rule = rule
+        # find: "no object is it" must survive one false tag (module doc).
+        self.absence_ratio = (fault_likelihood_ratio(rule.observation_params, rule.n_tags)
+                              if absence_fault_margin else rule.fault_ratio)
 
     # -- claims held to the rule's confidence --------------------------------------------------
-    def confident(self, p_claim: float) -> bool:
-        """The rule would accept a claim of probability ``p_claim``."""
+    def confident(self, p_claim: float, fault_ratio: float | None = None) -> bool:
+        """The rule would accept a claim of probability ``p_claim`` (``fault_ratio``:
+        discount it for one false observation of that odds ratio; None: the rule's)."""
         if self.rule.kind == 'error':
-            return float(fault_discounted_error(p_claim, self.rule.fault_ratio)) \
-                <= self.rule.target_error
+            ratio = self.rule.fault_ratio if fault_ratio is None else fault_ratio
+            return float(fault_discounted_error(p_claim, ratio)) <= self.rule.target_error
         if self.rule.kind == 'posterior':
             return p_claim > self.rule.stop_posterior
         return False  # 'fixed': never early
@@ -176,7 +189,7 @@ class TaskMonitor:
         # that at least one object is the model, not each object's alone (three objects
         # at 0.002 each leave a 0.006 chance that the model is there).
         p_any = 1.0 - float(np.prod(1.0 - probability))
-        if self.confident(1.0 - p_any):
+        if self.confident(1.0 - p_any, self.absence_ratio):
             return TaskVerdict(True, f'no object is model {target} (P(any) {p_any:.2e})',
                                success=True)
         # An object at its action limit stays as undecided as it is; one that holds no

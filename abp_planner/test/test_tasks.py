@@ -77,6 +77,20 @@ def test_find_stops_when_every_object_is_surely_not_the_model(robot, rule):
         scene(robot, a={9: 1.0}, b={12: 0.5, 13: 0.5}), {}).done
 
 
+def test_absence_must_survive_one_false_tag(robot, rule):
+    """P(any) just under the bound: enough for a plain claim, not for 'none is it',
+    which one false tag could have caused."""
+    p = 0.5 * rule.target_error
+    belief = scene(robot, a={5: p, 9: 1 - p})
+    assert not TaskMonitor(Task('find', model=5), rule).check(belief, {}).done
+    plain = TaskMonitor(Task('find', model=5), rule, absence_fault_margin=False)
+    assert plain.check(belief, {}).success
+    tiny = rule.target_error / 1000  # ρ = 279 at the defaults: ρ·tiny < target_error
+    verdict = TaskMonitor(Task('find', model=5), rule).check(
+        scene(robot, a={5: tiny, 9: 1 - tiny}), {})
+    assert verdict.done and verdict.success
+
+
 def test_find_acts_on_the_most_likely_carrier(robot, rule):
     monitor = TaskMonitor(Task('find', model=5), rule)
     belief = scene(robot, a={5: 0.5, 6: 0.5}, b={5: 0.1, 7: 0.9}, c={8: 1.0})

@@ -47,11 +47,7 @@ class BeliefFilter:
 
     def predict(self, action):
         """Propagate through an executed action (name or index)."""
-        transpose = self.model_set.transition_transpose(action_index(action))
-        predicted = transpose @ self.belief
-        # Rows of T sum to 1, so this only removes round-off drift.
-        predicted /= predicted.sum()
-        self.belief = predicted
+        self.belief = predict_belief(self.model_set, action, self.belief)
 
     def correct(self, z) -> float:
         """Condition on observation z = (type, s0, s1, s2); returns p(z | history).
@@ -59,16 +55,9 @@ class BeliefFilter:
         Raises BeliefUpdateError (belief unchanged) if the update cannot be normalised;
         with the strictly positive observation model this only happens for corrupt input.
         """
-        lik_aspect = self.model_set.observation.likelihood(z)
-        lik = np.take(lik_aspect, self.model_set.node_aspect, out=self._likelihood_buffer)
-        posterior = lik * self.belief
-        total = posterior.sum()
-        if not (np.isfinite(total) and total > 0.0):
-            raise BeliefUpdateError(f'observation {tuple(z)} has total likelihood {total} '
-                                    'under the current belief; belief left unchanged')
-        posterior /= total
-        self.belief = posterior
-        return float(total)
+        self.belief, total = correct_belief(self.model_set, z, self.belief,
+                                            likelihood_buffer=self._likelihood_buffer)
+        return total
 
     def object_marginal(self) -> np.ndarray:
         return self.belief.reshape(self.model_set.num_models, STATES_PER_MODEL).sum(axis=1)
@@ -85,6 +74,57 @@ class BeliefFilter:
         marginal = self.object_marginal()
         best = int(np.argmax(marginal))
         return best, float(marginal[best])
+
+
+def predict_belief(model_set: ModelSet, action, belief: np.ndarray) -> np.ndarray:
+    """``bel⁻ = Tᵀ bel`` through an executed action (name or index): a new array.
+
+    ``belief`` is one (N,) node belief or a (K, N) stack of K beliefs over the same
+    model set (all K predicted through the same action with one CSR product)."""
+    transpose = model_set.transition_transpose(action_index(action))
+    if belief.ndim == 1:
+        predicted = transpose @ belief
+        # Rows of T sum to 1, so this only removes round-off drift.
+        predicted /= predicted.sum()
+        return predicted
+    predicted = np.ascontiguousarray((transpose @ belief.T).T)
+    predicted /= predicted.sum(axis=1, keepdims=True)
+    return predicted
+
+
+def correct_belief(model_set: ModelSet, z, belief: np.ndarray, likelihood_buffer=None
+                   ) -> tuple[np.ndarray, float]:
+    """``(η p(z | x) bel⁻, p(z | history))`` for one (N,) belief and observation z: a new
+    array. Raises BeliefUpdateError if the update cannot be normalised."""
+    lik_aspect = model_set.observation.likelihood(z)
+    lik = np.take(lik_aspect, model_set.node_aspect, out=likelihood_buffer)
+    posterior = lik * belief
+    total = posterior.sum()
+    if not (np.isfinite(total) and total > 0.0):
+        raise BeliefUpdateError(f'observation {tuple(z)} has total likelihood {total} '
+                                'under the current belief; belief left unchanged')
+    posterior /= total
+    return posterior, float(total)
+
+
+def correct_beliefs(model_set: ModelSet, observations, beliefs: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The (K, N) stack ``beliefs`` each conditioned on its own observation (K of them,
+    e.g. the cubes of one camera view), in one gather and one product: (posteriors,
+    totals). Raises BeliefUpdateError (nothing changed) if any row cannot be normalised."""
+    if len(observations) != beliefs.shape[0]:
+        raise ValueError(f'{len(observations)} observations for {beliefs.shape[0]} beliefs')
+    lik_aspect = np.array([model_set.observation.likelihood(z) for z in observations])
+    posterior = np.take(lik_aspect, model_set.node_aspect, axis=1)
+    posterior *= beliefs
+    totals = posterior.sum(axis=1)
+    bad = ~(np.isfinite(totals) & (totals > 0.0))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise BeliefUpdateError(f'observation {tuple(observations[k])} has total likelihood '
+                                f'{totals[k]} under belief {k}; beliefs left unchanged')
+    posterior /= totals[:, None]
+    return posterior, totals
 
 
 def entropy_bits(p) -> float:

@@ -26,6 +26,14 @@ import numpy as np
 from tqdm import tqdm
 
 from abp_belief.cube import ACTIONS, TRANSITION_RULES
+from abp_bench import multi_object_benchmark
+from abp_bench.model_sets import (
+    MODEL_SET_CHOICES,
+    OBJECT_FAMILIES,
+    build_model_set,
+    object_families,
+    with_model_tables,
+)
 from abp_planner.planner import PLANNER_NAMES, make_planner
 from abp_planner.simulator import MAX_ACTIONS, STOP_POSTERIOR, run_trial, trial_rngs
 from abp_planner.stopping import (
@@ -46,34 +54,6 @@ PAPER = {
     ('120', 'random'): ('0.93 ± 0.16', '0.25 ± 0.48', 18.8, 686.1, 96.67),
     ('120', 'abp'): ('1.00 ± 0.00', '0.00 ± 0.00', 5.9, 264.4, 100.00),
 }
-
-MODEL_SET_CHOICES = ('30', '60', '120', '1470', 'robot')
-
-
-def build_model_set(label: str, seed: int, tables: str = 'paper'):
-    """The model set `label` with the hand-written table `tables` (the paper's by default:
-    the protocol and Table II are the paper's)."""
-    from abp_belief import population
-    from abp_belief.modelset import TransitionParams
-
-    params = TransitionParams(rules=tables)
-    if label == '1470':
-        return population.full_set(transition_params=params)
-    if label == 'robot':
-        return population.robot_set(seed=seed, transition_params=params)
-    return population.random_visual_subset(int(label), seed=seed, transition_params=params)
-
-
-def with_model_tables(model_set, path: str | None):
-    """`model_set`'s models with the transition tables of the model file `path` (None:
-    unchanged)."""
-    if not path:
-        return model_set
-    from abp_belief import model_file
-    from abp_belief.atg_learning import with_tables
-
-    return with_tables(model_set, model_file.load(path))
-
 
 # One worker process keeps its model sets and belief filters between tasks.
 _WORKER: dict = {}
@@ -196,22 +176,6 @@ def markdown_table(summaries: dict, labels, planners) -> str:
             ]
             lines.append('| ' + ' | '.join(cells) + ' |')
     return '\n'.join(lines)
-
-
-OBJECT_FAMILIES = ('visual only', 'twin family, uniform', 'twin family, eccentric')
-
-
-def object_families(model_set) -> list[str]:
-    """Per model: 'visual only' (no other model has its faces), or, in a family of mass
-    twins (same faces), 'twin family, uniform' or 'twin family, eccentric'. A uniform
-    member has to rule out every twin by what the cube does, a visual-only one needs
-    only its tags."""
-    faces = np.asarray(model_set.faces)
-    _, family, size = np.unique(faces, axis=0, return_inverse=True, return_counts=True)
-    twins = size[family.reshape(-1)] > 1
-    uniform = np.asarray(model_set.mass) == 0
-    visual, twin_uniform, twin_eccentric = OBJECT_FAMILIES
-    return np.where(~twins, visual, np.where(uniform, twin_uniform, twin_eccentric)).tolist()
 
 
 def family_table(results: dict, labels, planners, seed: int) -> str | None:
@@ -366,7 +330,8 @@ def parse_args(argv):
                    help='model sets: random visual subsets of 30/60/120, the full 1470 set, '
                    'the robot set')
     p.add_argument('--trials', type=int, default=30, help='trials per model set and planner')
-    p.add_argument('--planners', nargs='+', default=['random', 'abp'], choices=PLANNER_NAMES)
+    p.add_argument('--planners', nargs='+', default=None, choices=PLANNER_NAMES,
+                   help='default: random abp; with --objects K > 1: cost')
     p.add_argument('--seed', type=int, default=0)
     p.add_argument('--alpha', type=float, default=0.1, help='Alg. 3 expansion threshold')
     p.add_argument('--max-actions', type=int, default=MAX_ACTIONS)
@@ -410,10 +375,14 @@ def parse_args(argv):
                    help='draw the true object only from this object family (the "By object '
                    'family" table), e.g. "twin family, uniform" to measure the uniform cubes '
                    'that have mass twins with many trials; the set must have that family')
+    multi_object_benchmark.add_arguments(p)
     p.add_argument('--jobs', type=int, default=1, help='worker processes')
     p.add_argument('--json', help='write summaries and every trial here')
     p.add_argument('--plot', help='write the Fig. 3-style belief plot (PNG) here')
     args = p.parse_args(argv)
+    if args.planners is None:
+        args.planners = ['random', 'abp'] if args.objects == 1 else ['cost']
+    multi_object_benchmark.check_arguments(p, args)
     if args.trials < 1:
         p.error('--trials must be >= 1')
     if not 0.0 <= args.alpha <= 1.0:
@@ -457,6 +426,8 @@ def main(argv=None) -> int:
         'refuse': tuple(args.refuse),
         'family': args.family,
     }
+    if args.objects > 1:
+        return multi_object_benchmark.main_objects(args, options)
     tasks = [
         (label, name, trial, args.seed, options)
         for label in args.models

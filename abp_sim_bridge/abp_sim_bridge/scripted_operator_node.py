@@ -126,9 +126,11 @@ class ScriptedOperatorNode(ManagedNode):
         self.world = None
 
     def configure(self):
-        from .operator_world import OperatorWorld   # MuJoCo (EGL) only once configured
+        from .operator_world import OperatorWorld  # MuJoCo (EGL) only once configured
+        from .worlds import check_rendering
 
         v = self._values = declare_all(self, SCRIPTED_SPECS)
+        check_rendering()  # no EGL: a configuration error with the fix, not a traceback
         self.hidden = choose_hidden_model(
             (), 0, v['model_set'], v['model_set_size'], v['n_tags'], v['seed'],
             v['model_file'], v['model_index'], v['cube_seed'])

@@ -15,7 +15,6 @@ from abp_belief.cube import (  # noqa: E402
     nominal_outcomes,
     state_of,
 )
-from abp_skills.operator_prompts import format_request, request_for  # noqa: E402
 from abp_sim_bridge.operator_world import OperatorWorld, cube_spot  # noqa: E402
 from abp_sim_bridge.scenario import HiddenModel, choose_hidden_model  # noqa: E402
 from abp_sim_bridge.scripted_operator import (  # noqa: E402
@@ -25,6 +24,7 @@ from abp_sim_bridge.scripted_operator import (  # noqa: E402
     ScriptedPerson,
     parse_request,
 )
+from abp_skills.operator_prompts import format_request, request_for  # noqa: E402
 
 
 class Goal:

@@ -75,7 +75,8 @@ class PromptReader:
         self._text = ''
 
     def feed(self, text):
-        self._text += text
+        # A pty's output processing turns each \n into \r\n.
+        self._text += text.replace('\r', '')
         out = []
         while True:
             match = _PROMPT.search(self._text)

@@ -31,8 +31,10 @@ import sys
 import termios
 import threading
 import time
+import traceback
 
 import numpy as np
+import rclpy
 from sensor_msgs.msg import CameraInfo, Image
 
 from abp_belief.model_set_config import POPULATION_SPECS, TRANSITION_RULES_SPEC
@@ -83,7 +85,8 @@ SCRIPTED_SPECS = (
                 'as another action (drawn evenly from the other seven ATG actions), and '
                 'answers done all the same.'),
     ParamSpec('operator_seed', INT, 0, "Seed of the person's draws (wrong actions, the "
-              "table's split outcomes, how exactly the cube is set down).", SEED_RANGE,
+              "table's split outcomes, how exactly the cube is set down), with the hidden "
+              'model index.', SEED_RANGE,
               read_only=True),
     ParamSpec('silent', BOOL, False, 'Read the requests but never answer (tests the '
               "operator_skills node's skill_timeout)."),
@@ -124,6 +127,7 @@ class ScriptedOperatorNode(ManagedNode):
         self._stop = threading.Event()
         self._threads = []
         self.world = None
+        self.failed = False      # the world thread failed: exit code 1
 
     def configure(self):
         from .operator_world import OperatorWorld  # MuJoCo (EGL) only once configured
@@ -137,7 +141,10 @@ class ScriptedOperatorNode(ManagedNode):
         self.world = OperatorWorld(self.hidden, v['camera_pose'], up_face=v['cube_up_face'],
                                    yaw_deg=v['cube_yaw'])
         self.person = ScriptedPerson(
-            self.hidden.mass_index, np.random.default_rng([v['operator_seed'], 35]),
+            # Seeded with the cube too: episodes of a benchmark (one seed, one cube each)
+            # do not repeat one pattern of wrong actions.
+            self.hidden.mass_index,
+            np.random.default_rng([v['operator_seed'], self.hidden.model_index + 1, 35]),
             v['transition_rules'], v['wrong_action_fraction'], v['yaw_jitter_deg'],
             v['push_reach'])
         intrinsics = camera_intrinsics()
@@ -177,9 +184,9 @@ class ScriptedOperatorNode(ManagedNode):
     def _world_loop(self):
         period = 1.0 / self._values['camera_rate']
         encoding = self._values['camera_encoding']
-        self._publish_truth()
         next_frame = time.monotonic()
         try:
+            self._publish_truth()
             while not self._stop.is_set():
                 try:
                     request, done_event, result = self._requests.get(
@@ -205,6 +212,12 @@ class ScriptedOperatorNode(ManagedNode):
                 next_frame += period
                 if next_frame < time.monotonic():
                     next_frame = time.monotonic() + period   # slow renderer: no backlog
+        except Exception:  # noqa: BLE001
+            if self._stop.is_set() or not self.context.ok():
+                return          # shutting down: the publishers' context is gone
+            self.failed = True
+            self.get_logger().error('world thread failed:\n' + traceback.format_exc())
+            rclpy.try_shutdown(context=self.context)
         finally:
             self.world.close()
 
@@ -271,7 +284,10 @@ def main(args=None):
         except OSError:
             pass
 
-    return run_node('scripted_operator', ScriptedOperatorNode, args, on_exit=on_exit)
+    failed = []
+    code = run_node('scripted_operator', ScriptedOperatorNode, args,
+                    on_exit=lambda node: (on_exit(node), failed.append(node.failed)))
+    return 1 if any(failed) else code
 
 
 if __name__ == '__main__':

@@ -49,8 +49,9 @@ class Goal:
 def test_the_words_a_person_reads_say_the_action(skill, goal, action, amount):
     text = format_request(request_for(skill, goal), 120.0)
     reader = PromptReader()
-    # The terminal delivers the text in pieces, one character at a time at worst.
-    found = [r for ch in 'noise\n' + text for r in reader.feed(ch)]
+    # The terminal delivers the text in pieces, one character at a time at worst, with
+    # the pty's \r\n line ends.
+    found = [r for ch in ('noise\n' + text).replace('\n', '\r\n') for r in reader.feed(ch)]
     assert len(found) == 1
     title, words = found[0]
     request = parse_request(title, words)

@@ -59,9 +59,9 @@ def pairs():
     from abp_planner.planner_config import PLANNER_SPECS
     from abp_sim_bridge import config as sim_config
     from abp_sim_bridge.mujoco_world import MujocoSettings
+    from abp_sim_bridge.operator_world import OperatorWorld
     from abp_sim_bridge.rules_contact import ContactParams
     from abp_sim_bridge.rules_physics import Failures
-    from abp_sim_bridge.operator_world import OperatorWorld
     from abp_sim_bridge.rules_world import SimSettings
     from abp_sim_bridge.scripted_operator import ScriptedPerson
     from abp_sim_bridge.scripted_operator_node import SCRIPTED_SPECS

@@ -259,7 +259,8 @@ start_managed() {
   fi
   local executable="$2"; shift 2
   { echo "/**/$executable:"; echo "  ros__parameters:"
-    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: true"
+    # The operator graphs run on wall time (no /clock): as start() does for them.
+    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: $( [ -n "$operator" ] && echo false || echo true)"
     while [ $# -gt 0 ]; do
       [ "$1" = -p ] || die "start_managed: only -p name:=value arguments (got $1)"
       echo "    ${2%%:=*}: ${2#*:=}"; shift 2
@@ -349,7 +350,7 @@ fi
 if [ "$operator" = scripted ]; then
   # operator_skills opens its terminal when the manager configures it.
   for _ in $(seq 600); do [ -L "$operator_terminal" ] && break; sleep 0.1; done
-  [ -L "$operator_terminal" ] || { echo "[start_graph] the scripted operator made no pty at $operator_terminal within 60 s; its log:" >&2; tail -5 "$log_dir/scripted_operator.log" >&2; exit 1; }
+  [ -L "$operator_terminal" ] || { echo "[start_graph] the scripted operator made no pty at $operator_terminal within 60 s; its log:" >&2; tail -5 "$log_dir/$( [ "$one_process" = 1 ] && echo graph_container || echo scripted_operator).log" >&2; exit 1; }
 fi
 start abp_bringup lifecycle_manager -p "node_names:=[$node_list]"
 manager_log="$log_dir/lifecycle_manager.log"

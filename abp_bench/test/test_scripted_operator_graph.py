@@ -61,8 +61,8 @@ def test_a_silent_operator_ends_the_request_after_skill_timeout(ros_processes, t
     assert not summary['success'] and not summary['correct']
     assert summary['elapsed_s'] >= 4.0
     skills_log = (logs / 'operator_skills.log').read_text()
-    assert re.search(r'\w+: abort after (?:[4-9]|[1-9]\d+)\.\d s \(timeout: the operator did not answer '
-                     r'within 4 s \(skill_timeout\)\)', skills_log), skills_log
+    assert re.search(r'\w+: abort after (?:[4-9]|[1-9]\d+)\.\d s \(timeout: the operator did '
+                     r'not answer within 4 s \(skill_timeout\)\)', skills_log), skills_log
     operator_log = (logs / 'scripted_operator.log').read_text()
     assert 'staying silent' in operator_log and 'did ' not in operator_log
     planner_log = (logs / 'planner.log').read_text()

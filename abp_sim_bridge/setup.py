@@ -23,6 +23,7 @@ setup(
     entry_points={
         'console_scripts': [
             'sim_bridge = abp_sim_bridge.sim_bridge_node:main',
+            'scripted_operator = abp_sim_bridge.scripted_operator_node:main',
         ],
     },
 )

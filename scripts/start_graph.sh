@@ -47,6 +47,13 @@
 #                        camera x forward, z up, positive pitch looks down, in a frame on the
 #                        table below it (x towards the cube)           (default "0 0 0.4 0 45 0")
 #   --operator-terminal T  the operator's terminal device (default /dev/tty)
+#   --operator scripted  no robot: a MuJoCo world with a fixed camera at --camera-pose and the
+#                        hidden cube (--object, --seed), and a simulated person who reads each
+#                        request on operator_skills' terminal (a pty), does it to the cube and
+#                        answers (the scripted_operator node; docs/OPERATOR.md)
+#   --wrong-action-fraction F  with --operator scripted: share of the requests the person
+#                        carries out as another action (default 0)
+#   --operator-silent    with --operator scripted: the person never answers (skill_timeout)
 #   --one-process        run the managed nodes in one process on one executor
 #                        (abp_bringup graph_container; docs/STARTUP.md): a node that dies
 #                        takes the others with it, and the container is restarted as one
@@ -58,7 +65,8 @@ speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco
 tables=""
 respawn=1; serve=0; record_images=false; one_process=0
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
-usage() { sed -n '2,52p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+wrong_action_fraction=""; operator_silent=false
+usage() { sed -n '2,59p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -87,6 +95,8 @@ while [ $# -gt 0 ]; do
     --calibration) calibration="${2:?--calibration needs a file}"; shift 2 ;;
     --camera-pose) camera_pose="${2:?--camera-pose needs X Y Z ROLL PITCH YAW}"; shift 2 ;;
     --operator-terminal) operator_terminal="${2:?--operator-terminal needs a device}"; shift 2 ;;
+    --wrong-action-fraction) wrong_action_fraction="${2:?--wrong-action-fraction needs a value}"; shift 2 ;;
+    --operator-silent) operator_silent=true; shift ;;
     -h|--help) usage; exit 0 ;;
     *) die "unknown option $1 (see --help)" ;;
   esac
@@ -99,11 +109,18 @@ done
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
 [ -z "$record" ] || [ ! -e "$record" ] || die "--record $record exists: rosbag2 never overwrites a bag"
 if [ -n "$operator" ]; then
-  [ "$operator" = person ] || die "--operator must be person"
-  [ "$robot" = 0 ] || die "--operator person runs without the robot: leave out --robot"
+  [[ "$operator" =~ ^(person|scripted)$ ]] || die "--operator must be person or scripted"
+  [ "$robot" = 0 ] || die "--operator $operator runs without the robot: leave out --robot"
+  if [ "$operator" = scripted ]; then
+    [ -z "$camera$calibration" ] || die "--operator scripted renders its own camera: leave out --camera and --calibration"
+    [[ "${wrong_action_fraction:-0}" =~ ^(0|1|0?[.][0-9]+|1[.]0*)$ ]] || die "--wrong-action-fraction must be a number from 0 to 1"
+    wrong_action_fraction="${wrong_action_fraction:-0}"; [[ "$wrong_action_fraction" == *.* ]] || wrong_action_fraction+=".0"
+    [[ "$wrong_action_fraction" == .* ]] && wrong_action_fraction="0$wrong_action_fraction"
+  else
   [ -n "$camera" ] && [ -n "$calibration" ] || die "--operator person needs --camera and --calibration"
   [ -f "$calibration" ] || die "--calibration file $calibration not found"
   [[ "$camera" =~ ^/dev/ || "$camera" =~ ^[0-9]+$ || -e "$camera" ]] || die "--camera $camera: no such device, file or folder"
+  fi
   read -r -a pose_values <<< "$camera_pose"
   [ "${#pose_values[@]}" = 6 ] || die "--camera-pose needs 6 numbers: X Y Z ROLL PITCH YAW"
   pose_param=""   # a YAML list of doubles (a 0 alone would make it a mixed list)
@@ -111,10 +128,15 @@ if [ -n "$operator" ]; then
     [[ "$v" =~ ^-?[0-9]+([.][0-9]*)?$ ]] || die "--camera-pose: $v is not a number"
     [[ "$v" == *.* ]] || v="$v."; [[ "$v" == *. ]] && v="${v}0"; pose_param+="${pose_param:+,}$v"
   done
+  if [ "$operator" = person ]; then
   calibration="$(cd "$(dirname "$calibration")" && pwd)/$(basename "$calibration")"
   [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && camera="$(cd "$(dirname "$camera")" && pwd)/$(basename "$camera")"
+  fi
 elif [ -n "$camera$calibration" ]; then
   die "--camera and --calibration go with --operator person"
+fi
+if [ "$operator" != scripted ] && { [ -n "$wrong_action_fraction" ] || [ "$operator_silent" = true ]; }; then
+  die "--wrong-action-fraction and --operator-silent go with --operator scripted"
 fi
 namespace="${namespace#/}"; namespace="${namespace%/}"
 [ -z "$namespace" ] || [[ "$namespace" =~ ^[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*$ ]] \
@@ -237,7 +259,8 @@ start_managed() {
   fi
   local executable="$2"; shift 2
   { echo "/**/$executable:"; echo "  ros__parameters:"
-    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: true"
+    # The operator graphs run on wall time (no /clock): as start() does for them.
+    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: $( [ -n "$operator" ] && echo false || echo true)"
     while [ $# -gt 0 ]; do
       [ "$1" = -p ] || die "start_managed: only -p name:=value arguments (got $1)"
       echo "    ${2%%:=*}: ${2#*:=}"; shift 2
@@ -261,14 +284,26 @@ start() {
 }
 
 echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
-if [ "$operator" = person ]; then
+if [ -n "$operator" ]; then
   # A camera that does not move and a person for the skills (docs/OPERATOR.md): no sim
   # bridge, no robot_state; the detector takes the camera pose from --camera-pose, not
   # from joint states.
+  if [ "$operator" = person ]; then
   echo "[start_graph] operator graph: camera $camera, a person on $operator_terminal"
   loop=false; [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && loop=true
   start_managed abp_perception camera -p "source:=$camera" -p "calibration_file:=$calibration" \
     -p "loop:=$loop"
+  else
+  # The camera and the person simulated: operator_skills' terminal is the scripted
+  # person's pty, linked at operator_pty when its process starts (waited for below).
+  operator_terminal="$log_dir/operator_pty"
+  rm -f "$operator_terminal"
+  echo "[start_graph] scripted operator graph: MuJoCo camera at \"$camera_pose\", wrong actions $wrong_action_fraction$( [ "$operator_silent" = true ] && echo ", SILENT")"
+  start_managed abp_sim_bridge scripted_operator -p "terminal_link:=$operator_terminal" \
+    -p "model_index:=$object" -p "cube_seed:=$seed" -p "operator_seed:=$seed" \
+    -p "camera_pose:=[$pose_param]" -p "wrong_action_fraction:=$wrong_action_fraction" \
+    -p "silent:=$operator_silent"
+  fi
   start_managed abp_perception artag_detector -p "fixed_camera_pose:=[$pose_param]"
   start_managed abp_perception aspect_matcher
   start_managed abp_belief belief
@@ -311,6 +346,11 @@ if [ "$one_process" = 1 ]; then
   OPENBLAS_NUM_THREADS=1 OMP_NUM_THREADS=1 \
     supervise graph_container "$log_dir/graph_container.log" "${container[@]}" &
   pids+=("$!")
+fi
+if [ "$operator" = scripted ]; then
+  # operator_skills opens its terminal when the manager configures it.
+  for _ in $(seq 600); do [ -L "$operator_terminal" ] && break; sleep 0.1; done
+  [ -L "$operator_terminal" ] || { echo "[start_graph] the scripted operator made no pty at $operator_terminal within 60 s; its log:" >&2; tail -5 "$log_dir/$( [ "$one_process" = 1 ] && echo graph_container || echo scripted_operator).log" >&2; exit 1; }
 fi
 start abp_bringup lifecycle_manager -p "node_names:=[$node_list]"
 manager_log="$log_dir/lifecycle_manager.log"

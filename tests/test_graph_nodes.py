@@ -14,6 +14,7 @@ from abp_common.graph_nodes import (
     OPERATOR,
     ROBOT,
     ROBOT_NODE_NAMES,
+    SCRIPTED,
     SIM,
     graph_nodes,
 )
@@ -32,7 +33,7 @@ def test_the_list_is_consistent():
     assert ROBOT_NODE_NAMES == tuple(n.name for n in graph_nodes(ROBOT))
     # The robot graph is the sim graph without what stands in for the robot.
     assert ROBOT_NODE_NAMES == tuple(n.name for n in graph_nodes(SIM) if not n.sim_only)
-    assert [n.name for n in GRAPH if n.sim_only] == ['sim_bridge']
+    assert [n.name for n in GRAPH if n.sim_only] == ['sim_bridge', 'scripted_operator']
     with pytest.raises(ValueError, match='graph must be one of'):
         graph_nodes('moon')
 
@@ -52,9 +53,14 @@ def test_start_graph_starts_the_listed_nodes_in_order():
     assert start_managed(sim_part) == expect[SIM], \
         'scripts/start_graph.sh: its sim/robot start_managed lines differ from ' \
         'abp_common.graph_nodes'
-    assert start_managed(operator_part) == expect[OPERATOR], \
+    # The person's and the scripted operator's graphs share their lines but the first
+    # (camera or scripted_operator).
+    both = [(n.package, n.executable) for n in GRAPH if n.graphs & {OPERATOR, SCRIPTED}]
+    assert start_managed(operator_part) == both, \
         'scripts/start_graph.sh: its operator start_managed lines differ from ' \
         'abp_common.graph_nodes'
+    assert expect[OPERATOR] == [e for e in both if e[1] != 'scripted_operator']
+    assert expect[SCRIPTED] == [e for e in both if e[1] != 'camera']
 
 
 def test_the_lifecycle_manager_and_soak_use_the_list():

@@ -21,7 +21,9 @@ INTENDED = {
         'not the parameter: the distractor cubes built from its count',
 }
 # Argument (or field) name -> parameter name, where they differ.
-RENAMED = {'MujocoConfig': {'shadows': 'camera_shadows', 'offsamples': 'camera_offsamples'}}
+RENAMED = {'MujocoConfig': {'shadows': 'camera_shadows', 'offsamples': 'camera_offsamples'},
+           'ScriptedPerson': {'rules': 'transition_rules'},
+           'OperatorWorld': {'up_face': 'cube_up_face', 'yaw_deg': 'cube_yaw'}}
 
 
 def defaults_of(cls):
@@ -57,9 +59,12 @@ def pairs():
     from abp_planner.planner_config import PLANNER_SPECS
     from abp_sim_bridge import config as sim_config
     from abp_sim_bridge.mujoco_world import MujocoSettings
+    from abp_sim_bridge.operator_world import OperatorWorld
     from abp_sim_bridge.rules_contact import ContactParams
     from abp_sim_bridge.rules_physics import Failures
     from abp_sim_bridge.rules_world import SimSettings
+    from abp_sim_bridge.scripted_operator import ScriptedPerson
+    from abp_sim_bridge.scripted_operator_node import SCRIPTED_SPECS
     from abp_skills.base_motion import BaseLimits
     from abp_skills.plan_types import SkillConfig
     from abp_skills.skill_params import skills_parameter_specs
@@ -69,6 +74,7 @@ def pairs():
         (sim_config.SimBridgeConfig, sim), (sim_config.MujocoConfig, sim),
         (sim_config.CameraConfig, sim), (SimSettings, sim), (Failures, sim),
         (MujocoSettings, sim), (ContactParams, sim),
+        (ScriptedPerson, SCRIPTED_SPECS), (OperatorWorld, SCRIPTED_SPECS),
         (TagDetector, DETECTOR_SPECS), (ActiveBeliefPlanner, PLANNER_SPECS),
         (ObservationParams, MODEL_SET_SPECS), (TransitionParams, MODEL_SET_SPECS),
         (SkillConfig, skills_parameter_specs(True)), (BaseLimits, skills_parameter_specs(True)),

@@ -3,6 +3,7 @@
     graph_benchmark --episodes 20 [--world mujoco|rules] [--faults] [--models robot]
                     [--planner cost] [--seed S] [--json FILE] [--no-build] [--record DIR]
                     [--objects I [I ...] --repeats K] [--vary-start]
+                    [--operator scripted [--wrong-action-fraction F]]
 
 Each episode is one `scripts/start_graph.sh` run (every node its own process,
 over DDS) with a seeded hidden cube from the model set; the result is compared
@@ -18,6 +19,10 @@ DIR/labels.yaml (bag -> true object): the input of `episode_trace` and `learn_at
 model indices, in --repeats rounds), and --vary-start gives each episode its own cube
 start (up face, yaw) and failure seed, so that repeated episodes of one cube are
 different experience.
+--operator scripted runs each episode as `start_graph.sh --operator scripted` instead: no
+robot, the MuJoCo world's fixed camera and a scripted person doing each request
+(docs/OPERATOR.md), who does the wrong action --wrong-action-fraction of the time
+(seeded with --seed).
 Prints a Markdown table; the figures go in docs/BENCHMARKS.md.
 """
 
@@ -146,12 +151,22 @@ def parse_args(argv):
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--timeout', type=float, default=900.0, help='per episode, wall s')
     parser.add_argument('--json', default='')
+    parser.add_argument('--operator', choices=('scripted',), default=None,
+                        help='as start_graph.sh --operator scripted: a scripted person and a '
+                        'fixed camera instead of the robot (no sim bridge)')
+    parser.add_argument('--wrong-action-fraction', type=float, default=None, metavar='F',
+                        help='with --operator scripted: share of the requests done wrong')
     parser.add_argument('--record', metavar='DIR', default='',
                         help='record each episode to a bag in DIR (a new or empty directory) '
                         'and write DIR/labels.yaml')
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error('--repeats must be >= 1')
+    if args.operator is None and args.wrong_action_fraction is not None:
+        parser.error('--wrong-action-fraction goes with --operator scripted')
+    if args.operator and (args.faults or args.vary_start or args.one_process):
+        parser.error('--operator scripted has no sim bridge: no --faults, --vary-start or '
+                     '--one-process')
     if args.objects is None:
         if args.repeats > 1:
             parser.error('--repeats needs --objects')
@@ -239,7 +254,10 @@ def tables_of(args) -> str:
 
 def run_episode(args, index, workdir, params_file, bag=None):
     result_file = workdir / f'episode-{index}.json'
-    cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), '--world', args.world,
+    world = (['--operator', args.operator] if args.operator else ['--world', args.world])
+    if args.wrong_action_fraction is not None:
+        world += ['--wrong-action-fraction', str(args.wrong_action_fraction)]
+    cmd = [str(repo_root() / 'scripts' / 'start_graph.sh'), *world,
            '--models', args.models,
            '--seed', str(args.seed), '--object', str(index), '--planner', args.planner,
            '--speedup', str(args.speedup), '--result-json', str(result_file),
@@ -272,12 +290,23 @@ def run_episode(args, index, workdir, params_file, bag=None):
         raise
     result = json.loads(result_file.read_text()) if result_file.exists() else {}
     result.update(object=index, hung=False, wall_s=time.monotonic() - started)
+    if args.operator:
+        result.update(operator_actions(workdir / f'logs-{index}' / 'scripted_operator.log'))
     result.setdefault('correct', False)
     if 'status' not in result:
         # No result from the client: the graph never came up, or no goal ran to its end.
         lines = errors.read_text(errors='replace').strip().splitlines()
         result['no_result'] = lines[-1] if lines else f'start_graph.sh exited {proc.returncode}'
     return result
+
+
+def operator_actions(log):
+    """{'operator_actions': N, 'wrong_actions': W} from a scripted operator's log (its
+    `did ...` lines name a wrong action as such)."""
+    done = [line for line in (log.read_text(errors='replace').splitlines()
+                              if log.exists() else []) if ']: did ' in line]
+    return {'operator_actions': len(done),
+            'wrong_actions': sum('(wrong action)' in line for line in done)}
 
 
 def verdict(result):
@@ -314,25 +343,33 @@ def summarise(results, latencies, observation_latencies, args):
          f"{verdicts.count('no result')}"),
         ('hung (no result within the timeout)', f"{verdicts.count('hung')}"),
         ('mean actions', f"{statistics.mean(r['actions'] for r in done):.2f}" if done else '-'),
-        ('mean sim time per episode (s)',
+        *([('operator actions done wrong',
+            f"{sum(r['wrong_actions'] for r in results)} of "
+            f"{sum(r['operator_actions'] for r in results)}")] if args.operator else []),
+        ('mean wall time of the recognition (s)' if args.operator else
+         'mean sim time per episode (s)',
          f"{statistics.mean(r['elapsed_s'] for r in done):.1f}" if done else '-'),
         ('median wall time per episode (s)',
          f"{statistics.median(r['wall_s'] for r in results):.1f}"),
         # The issue 39 figure: simulated seconds of the episodes over their wall seconds,
         # start-up and shut-down included.
-        ('sim s / wall s, start-up included (all episodes)',
-         f"{sum(r['elapsed_s'] for r in done) / sum(r['wall_s'] for r in done):.2f}"
-         if done else '-'),
+        *([] if args.operator else [(
+            'sim s / wall s, start-up included (all episodes)',
+            f"{sum(r['elapsed_s'] for r in done) / sum(r['wall_s'] for r in done):.2f}"
+            if done else '-')]),
         ('image -> belief latency, median / p95 (ms)',
          f'{np.nanmedian(lat):.1f} / {np.nanpercentile(lat, 95):.1f} ({len(latencies)} updates)'),
         ('image -> aspect observation latency, median / p95 (ms)',
          f'{np.nanmedian(obs):.1f} / {np.nanpercentile(obs, 95):.1f} '
          f'({len(observation_latencies)} frames)'),
     ]
-    title = (f"{args.world} world, {args.models} models ({tables_of(args)} tables), "
-             f"planner {args.planner}, "
-             f"{'with' if args.faults else 'without'} fault injection, speed-up {args.speedup:g}"
-             f"{', one process' if args.one_process else ''}")
+    where = (f'scripted operator, fixed camera, wrong actions '
+             f'{args.wrong_action_fraction or 0:.0%}' if args.operator else f'{args.world} world')
+    sim = ('' if args.operator else
+           f", {'with' if args.faults else 'without'} fault injection, speed-up "
+           f'{args.speedup:g}')
+    title = (f"{where}, {args.models} models ({tables_of(args)} tables), "
+             f"planner {args.planner}{sim}{', one process' if args.one_process else ''}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]
     return '\n'.join(lines)

@@ -80,11 +80,23 @@ def test_graph_benchmark_runs_listed_cubes_from_starts_of_their_own():
     (['--objects', '1', '--episodes', '3'], '--episodes and --objects exclude each other'),
     (['--objects', '1', '--repeats', '0'], '--repeats must be >= 1'),
     (['--episodes', '0'], '--episodes must be >= 1'),
+    (['--wrong-action-fraction', '0.1'], '--wrong-action-fraction goes with --operator'),
+    (['--operator', 'scripted', '--faults'], '--operator scripted has no sim bridge'),
 ])
 def test_graph_benchmark_refuses_conflicting_episode_options(argv, message, capsys):
     with pytest.raises(SystemExit):
         graph_benchmark.parse_args(argv)
     assert message in capsys.readouterr().err
+
+
+def test_graph_benchmark_counts_the_scripted_operators_wrong_actions(tmp_path):
+    log = tmp_path / 'scripted_operator.log'
+    log.write_text('[INFO] [1.0] [scripted_operator]: did LIFT 10 cm as asked: state 32 -> 32\n'
+                   '[INFO] [2.0] [scripted_operator]: did PUSH instead of FLIP 90 deg (wrong '
+                   'action): state 32 -> 32\n[INFO] [3.0] [scripted_operator]: active\n')
+    assert graph_benchmark.operator_actions(log) == {'operator_actions': 2, 'wrong_actions': 1}
+    assert graph_benchmark.operator_actions(tmp_path / 'none.log') == \
+        {'operator_actions': 0, 'wrong_actions': 0}
 
 
 def test_an_interrupted_graph_benchmark_keeps_its_finished_episodes(tmp_path, monkeypatch,

@@ -111,6 +111,10 @@ NODES = {
         _class('abp_perception.camera_node', 'CameraNode'), on_exit=_close_camera,
         config_errors=[('abp_perception.frame_source', 'FrameSourceError'),
                        ('abp_perception.camera_calibration_file', 'CalibrationFileError')]),
+    # start_graph.sh --operator scripted: the MuJoCo camera and a simulated person.
+    'scripted_operator': NodeEntry(
+        _class('abp_sim_bridge.scripted_operator_node', 'ScriptedOperatorNode'), threads=2,
+        on_exit=lambda node: node.stop()),
     'operator_skills': NodeEntry(
         _class('abp_skills.operator_node', 'OperatorSkillsNode'), threads=4,
         config_errors=[('builtins', 'TypeError'), ('rclpy.exceptions', 'ParameterException')]),

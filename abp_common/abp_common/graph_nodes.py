@@ -4,7 +4,9 @@ and executable that run it, and the graphs it runs in:
 - `sim`: the sim bridge stands in for the robot (scripts/start_graph.sh, `sim:=true`);
 - `robot`: the same nodes without the sim bridge (`start_graph.sh --robot`, `sim:=false`);
 - `operator`: no robot and no sim, a fixed camera and a person doing the skills
-  (`start_graph.sh --operator person`, docs/OPERATOR.md).
+  (`start_graph.sh --operator person`, docs/OPERATOR.md);
+- `scripted`: the operator graph with a simulated person and camera in the MuJoCo world
+  (`start_graph.sh --operator scripted`, the `scripted_operator` node).
 
 The order is the bring-up order (dependencies first): the sensors (the sim bridge's clock
 and sensors, or the camera), the robot's tf tree (robot_state), perception, the belief,
@@ -19,40 +21,46 @@ tests/test_graph_nodes.py fails when its `start_managed` lines differ from this 
 import argparse
 from typing import NamedTuple
 
-SIM, ROBOT, OPERATOR = 'sim', 'robot', 'operator'
-GRAPHS = (SIM, ROBOT, OPERATOR)
+SIM, ROBOT, OPERATOR, SCRIPTED = 'sim', 'robot', 'operator', 'scripted'
+GRAPHS = (SIM, ROBOT, OPERATOR, SCRIPTED)
 _ALL = frozenset(GRAPHS)
 _WITH_ROBOT = frozenset((SIM, ROBOT))
+_WITH_OPERATOR = frozenset((OPERATOR, SCRIPTED))
+_SIMULATED = frozenset((SIM, SCRIPTED))
 
 
 class GraphNode(NamedTuple):
     name: str
     package: str
     executable: str
-    graphs: frozenset   # the graphs it runs in (SIM, ROBOT, OPERATOR)
+    graphs: frozenset   # the graphs it runs in (SIM, ROBOT, OPERATOR, SCRIPTED)
 
     @property
     def sim_only(self):
-        """Stands in for the robot: started in no graph that runs without the simulator."""
-        return self.graphs == {SIM}
+        """Stands in for the robot or the world: started in no graph that runs without
+        the simulator (the sim bridge, the scripted operator)."""
+        return self.graphs <= _SIMULATED
 
 
 GRAPH = (
     GraphNode('sim_bridge', 'abp_sim_bridge', 'sim_bridge', frozenset((SIM,))),
     GraphNode('camera', 'abp_perception', 'camera', frozenset((OPERATOR,))),
+    # The camera and the person of the scripted operator graph, in one node.
+    GraphNode('scripted_operator', 'abp_sim_bridge', 'scripted_operator',
+              frozenset((SCRIPTED,))),
     GraphNode('robot_state', 'abp_description', 'robot_state', _WITH_ROBOT),
     GraphNode('artag_detector', 'abp_perception', 'artag_detector', _ALL),
     GraphNode('aspect_matcher', 'abp_perception', 'aspect_matcher', _ALL),
     GraphNode('belief', 'abp_belief', 'belief', _ALL),
     # The four action servers in one process.
     GraphNode('skill_servers', 'abp_skills', 'skill_servers', _WITH_ROBOT),
-    GraphNode('operator_skills', 'abp_skills', 'operator_skills', frozenset((OPERATOR,))),
+    GraphNode('operator_skills', 'abp_skills', 'operator_skills', _WITH_OPERATOR),
     GraphNode('planner', 'abp_planner', 'planner', _ALL),
 )
 
 
 def graph_nodes(graph=SIM):
-    """The nodes of `graph` (SIM, ROBOT or OPERATOR), in bring-up order."""
+    """The nodes of `graph` (SIM, ROBOT, OPERATOR or SCRIPTED), in bring-up order."""
     if graph not in GRAPHS:
         raise ValueError(f'graph must be one of {", ".join(GRAPHS)}, got {graph!r}')
     return tuple(node for node in GRAPH if graph in node.graphs)
@@ -77,4 +85,4 @@ if __name__ == '__main__':
 
 
 __all__ = ['GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'ROBOT', 'ROBOT_NODE_NAMES',
-           'SIM', 'GraphNode', 'graph_nodes']
+           'SCRIPTED', 'SIM', 'GraphNode', 'graph_nodes']

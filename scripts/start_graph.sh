@@ -257,14 +257,17 @@ start_managed() {
     start "$@" -p autostart:=false
     return
   fi
-  local executable="$2"; shift 2
-  { echo "/**/$executable:"; echo "  ros__parameters:"
-    # The operator graphs run on wall time (no /clock): as start() does for them.
-    [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && echo "    use_sim_time: $( [ -n "$operator" ] && echo false || echo true)"
-    while [ $# -gt 0 ]; do
-      [ "$1" = -p ] || die "start_managed: only -p name:=value arguments (got $1)"
-      echo "    ${2%%:=*}: ${2#*:=}"; shift 2
-    done; } >> "$container_params"
+  local executable="$2" values=""; shift 2
+  # The operator graphs run on wall time (no /clock): as start() does for them.
+  [ "$robot" = 0 ] && [ "$executable" != sim_bridge ] && values+="    use_sim_time: $( [ -n "$operator" ] && echo false || echo true)"$'\n'
+  while [ $# -gt 0 ]; do
+    [ "$1" = -p ] || die "start_managed: only -p name:=value arguments (got $1)"
+    values+="    ${2%%:=*}: ${2#*:=}"$'\n'; shift 2
+  done
+  # An empty block would be YAML null, which the parameter parser refuses: write {}.
+  { echo "/**/$executable:"
+    if [ -n "$values" ]; then echo "  ros__parameters:"; printf '%s' "$values"
+    else echo "  ros__parameters: {}"; fi; } >> "$container_params"
 }
 start() {
   local package="$1" executable="$2"; shift 2

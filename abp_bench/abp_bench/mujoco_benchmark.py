@@ -112,16 +112,16 @@ def _median(values):
 
 def _swing(world, kin, sim_seconds, amplitude=0.3, period=4.0):
     """Both arms swing sinusoidally about their start positions for `sim_seconds`."""
-    from abp_description.controllers import CONTROLLERS
     from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
     times = np.arange(0.25, sim_seconds + 0.5, 0.25)
-    for side in ('left', 'right'):
-        joints = CONTROLLERS[f'{side}_arm_controller']
+    for arm in kin.profile.arms.values():
+        controller = arm.controller
+        joints = arm.joints
         q = world.q[[kin.joint_index(j) for j in joints]]
         shape = np.array([1.0, 0.4, 0.5, 0.8])
         points = [TrajectoryPoint(t, q + amplitude * np.sin(2 * np.pi * t / period) * shape)
                   for t in times]
-        world.set_trajectory(f'{side}_arm_controller', list(joints), points)
+        world.set_trajectory(controller, list(joints), points)
 
 
 def drive_command(t, speed=0.3, turn=0.6, period=4.0):
@@ -362,7 +362,7 @@ class SceneMaker:
         self._base_qadr = np.array([m.joint(n).qposadr[0] for n in BASE_JOINTS])
         self._cube_body = m.body(CUBE_BODY).id
         self._cube_qadr = m.joint(m.body(CUBE_BODY).jntadr[0]).qposadr[0]
-        self._optical = m.body('camera_optical_frame').id
+        self._optical = m.body(self.kin.profile.frames.camera_optical).id
         self.data = mujoco.MjData(m)
         self.edge = self.world.cube_spec.edge
         self.tag_edge = self.world.cube_spec.tag_edge
@@ -377,7 +377,7 @@ class SceneMaker:
             name = names[k]
             q = self.postures[name].copy()
             if name == 'home':
-                q[kin.joint_index('torso_pitch_joint')] = rng.uniform(0.0, 1.2)
+                q[kin.joint_index(kin.profile.torso.joint)] = rng.uniform(0.0, 1.2)
             placed = place_robot(kin, q, distance, bearing_in_base)
             if placed is not None:
                 break
@@ -404,7 +404,7 @@ class SceneMaker:
         return qpos, {'posture': name, 'distance': distance, 'up': up,
                       'cube_yaw_deg': float(np.degrees(cube_yaw)),
                       'bearing_deg': float(np.degrees(bearing)),
-                      'torso': float(q[kin.joint_index('torso_pitch_joint')])}
+                      'torso': float(q[kin.joint_index(kin.profile.torso.joint)])}
 
     def ground_truth(self, qpos, max_view_angle_deg=70.0, margin_px=2.0):
         """Per face: tag id, tag pose (world), camera distance, view angle, whether face

@@ -12,7 +12,7 @@ the fields; profiles/ubot6.yaml is the worked example.
 import functools
 import math
 import xml.etree.ElementTree as ElementTree
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import MappingProxyType
 
@@ -138,6 +138,7 @@ class RobotProfile:
     collision: CollisionGeometry
     skills: MappingProxyType  # skill -> arms it uses (empty for orbit)
     servo_gains: MappingProxyType   # simulator: joint name or part of one -> (kp, kv, arm.)
+    grasp_opening_joints: MappingProxyType   # simulator: joint -> outward sign (±1)
 
     # -- derived tables ------------------------------------------------------------------
     @property
@@ -179,6 +180,14 @@ class RobotProfile:
             raise ProfileError(f'{self.path}: urdf is {URDF_FROM_TOPIC!r}; this reader needs '
                                'a URDF file (set urdf to a path)')
         return self.urdf
+
+
+def with_profile_defaults(specs, profile):
+    """`specs` (ParamSpecs) with the defaults the robot profile sets: the base command's
+    type and topic (abp_common.base_command.SPECS)."""
+    robot = {'base_command_type': profile.base.command_type,
+             'base_command_topic': profile.base.command_topic}
+    return tuple(replace(s, default=robot[s.name]) if s.name in robot else s for s in specs)
 
 
 # -- loading ------------------------------------------------------------------------------
@@ -385,6 +394,16 @@ def _servo_gains(reader):
     return MappingProxyType(gains)
 
 
+def _signs(reader):
+    signs = {}
+    for key in reader.doc:
+        value = reader.raw(key)
+        if value not in (1, -1) or isinstance(value, bool):
+            raise reader.error(f'must be 1 or -1, got {value!r}', reader._path(str(key)))
+        signs[str(key)] = float(value)
+    return MappingProxyType(signs)
+
+
 def profile_from_dict(doc, path='<profile>'):
     """A RobotProfile from the parsed YAML `doc` (relative files from `path`'s folder)."""
     top = _Reader(doc, path)
@@ -398,6 +417,9 @@ def profile_from_dict(doc, path='<profile>'):
                 base_reader.names('wheel_joints', [], allow_empty=True),
                 _orbit(base_reader.child('orbit')))
     base_reader.done()
+    if len(base.wheel_joints) not in (0, 2):
+        raise base_reader.error('wheel_joints: list the left then the right wheel joint '
+                                '(or none)')
     controllers = _controllers(top.child('controllers'))
     by_name = {c.name: c for c in controllers}
 
@@ -438,10 +460,11 @@ def profile_from_dict(doc, path='<profile>'):
     skills = _skills(top.child('skills'), arms)
     sim = top.child('simulation', {})
     gains = _servo_gains(sim.child('servo_gains', {}))
+    opening = _signs(sim.child('grasp_opening_joints', {}))
     sim.done()
     top.done()
     profile = RobotProfile(name, str(path), urdf, camera, base, controllers, frames, head, torso,
-                           MappingProxyType(arms), collision, skills, gains)
+                           MappingProxyType(arms), collision, skills, gains, opening)
     if not profile.urdf_from_topic:
         check_against_urdf(profile, _urdf_names(urdf, path))
     return profile
@@ -469,6 +492,8 @@ def check_against_urdf(profile, urdf_names):
                      for j in c.joints if j not in movable]
     problems += [f'base.wheel_joints: no movable joint {j!r}'
                  for j in profile.base.wheel_joints if j not in movable]
+    problems += [f'simulation.grasp_opening_joints: no movable joint {j!r}'
+                 for j in profile.grasp_opening_joints if j not in movable]
     frames = [('frames.base', profile.frames.base),
               ('frames.camera_optical', profile.frames.camera_optical),
               ('frames.camera_mount', profile.frames.camera_mount)]
@@ -486,4 +511,5 @@ def check_against_urdf(profile, urdf_names):
 
 __all__ = ['Arm', 'Base', 'BodyShape', 'CollisionGeometry', 'Controller', 'Frames', 'Head',
            'OrbitLimits', 'PROFILE_SPEC', 'ProfileError', 'RobotProfile', 'SKILLS', 'Torso',
-           'check_against_urdf', 'default_profile_path', 'load_profile', 'profile_from_dict']
+           'check_against_urdf', 'default_profile_path', 'load_profile', 'profile_from_dict',
+           'with_profile_defaults']

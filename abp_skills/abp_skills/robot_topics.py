@@ -152,7 +152,8 @@ class RobotCommands:
     # -- the base ----------------------------------------------------------------------
     def _publish_base(self, v, w):
         self._cmd_pub.publish(base_command.command(
-            self._base_kind, v, w, self.ctx.ros.get_clock().now().to_msg()))
+            self._base_kind, v, w, self.ctx.ros.get_clock().now().to_msg(),
+            self.ctx.kin.profile.frames.base))
 
     def velocity(self, v, w):
         """Drive the base at v (m/s), ω (rad/s)."""

@@ -71,7 +71,7 @@ NODE_SPECS = (
 # Descriptions of the SkillConfig fields exposed as parameters.
 CONFIG_DESCRIPTIONS = {
     'cube_size': 'm, ARcube edge.',
-    'support_height': 'm, height of the surface the cube rests on, in base_link.',
+    'support_height': 'm, height of the surface the cube rests on, in the base frame.',
     'use_estimated_height': 'Take the cube centre height from the estimate (else '
                             'support_height + cube_size / 2).',
     'hand_radius': "m, radius of the hands' contact balls (sim bridge: 0.03).",
@@ -144,7 +144,7 @@ CONFIG_SPECS = _config_specs()
 def _profile_defaults(profile):
     """{parameter: default} that the robot profile sets."""
     orbit, push = profile.base.orbit, profile.skill_arms('push')
-    out = {'base_command_type': profile.base.command_type,
+    out = {'base_command_type': profile.base.command_type,   # as with_profile_defaults
            'base_command_topic': profile.base.command_topic,
            'orbit_min_radius': orbit.min_radius, 'orbit_max_radius': orbit.max_radius,
            **{f'base_{name}': getattr(orbit, name) for name in ORBIT_FIELDS}}

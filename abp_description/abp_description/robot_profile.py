@@ -20,6 +20,8 @@ import yaml
 
 from abp_common.param_spec import STRING, ParamSpec
 
+from .data_files import _data_file
+
 DEFAULT_PROFILE = 'ubot6.yaml'
 PROFILE_DIR = 'profiles'
 URDF_FROM_TOPIC = 'topic'   # `urdf: topic`: the URDF arrives on /robot_description
@@ -193,7 +195,6 @@ def with_profile_defaults(specs, profile):
 # -- loading ------------------------------------------------------------------------------
 def default_profile_path():
     """The shipped uBot-6 profile (installed share dir, else the source tree)."""
-    from . import _data_file
     return str(_data_file(PROFILE_DIR, DEFAULT_PROFILE))
 
 

@@ -44,7 +44,6 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 import numpy as np  # noqa: E402
 
 from abp_belief.cube import R_UP  # noqa: E402
-from abp_description.controllers import BODY_JOINTS  # noqa: E402
 from abp_description.frames import rot_z  # noqa: E402
 from abp_description.kinematics import RobotKinematics, look_at  # noqa: E402
 
@@ -92,7 +91,7 @@ def postures(kin):
     plan = planner.plan('lift', q_home, NOMINAL_CENTRE)
     if not plan.ok:
         raise RuntimeError(f'LIFT plan failed: {plan.reason}')
-    body = [kin.joint_index(n) for n in BODY_JOINTS]
+    body = [kin.joint_index(n) for n in kin.profile.body_joints]
     q_pre = q_home.copy()
     q_pre[body] = plan.phases[0].trajectory.positions[-1]
     q_ready = planner.ready(q_home, look=NOMINAL_CENTRE)
@@ -322,7 +321,6 @@ def hand_across_view(kin, q, cube_in_base, rng, tries=300, reach=0.09):
     """Arms of q moved at random about their posture until a hand lies between the camera
     and the cube, within `reach` of the line of sight (so it may hide part of the cube);
     q unchanged when no sample does. The camera does not move (arm joints only)."""
-    from abp_description.controllers import ARM_JOINTS
     cam = kin.camera_pose(q)[:3, 3]
     ray = cube_in_base - cam
     depth = float(np.linalg.norm(ray))
@@ -330,9 +328,10 @@ def hand_across_view(kin, q, cube_in_base, rng, tries=300, reach=0.09):
     spread = np.array([0.8, 0.4, 0.8, 0.8])     # pitch, roll, yaw, elbow (rad)
     for _ in range(tries):
         cand = q.copy()
-        sides = [('left', 'right')[int(rng.integers(2))]]
+        arms = kin.profile.sides
+        sides = [arms[int(rng.integers(len(arms)))]]
         for side in sides:
-            idx = [kin.joint_index(j) for j in ARM_JOINTS[side]]
+            idx = [kin.joint_index(j) for j in kin.profile.arm_joints[side]]
             cand[idx] += rng.uniform(-1, 1, 4) * spread
         cand = kin.clip(cand)
         for side in sides:

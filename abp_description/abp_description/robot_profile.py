@@ -124,6 +124,17 @@ class Torso:
 
 
 @dataclass(frozen=True)
+class Posture:
+    """A named posture: the torso angle (None without a torso) and {arm: joint values}."""
+
+    torso: float | None
+    arms: MappingProxyType
+
+
+POSTURES = ('home', 'ready', 'reach')   # what the manual skills' plans are built from
+
+
+@dataclass(frozen=True)
 class RobotProfile:
     """A checked robot profile. Mappings are read-only; `path` is the file it came from."""
 
@@ -141,6 +152,7 @@ class RobotProfile:
     skills: MappingProxyType  # skill -> arms it uses (empty for orbit)
     servo_gains: MappingProxyType   # simulator: joint name or part of one -> (kp, kv, arm.)
     grasp_opening_joints: MappingProxyType   # simulator: joint -> outward sign (±1)
+    postures: MappingProxyType   # name (POSTURES) -> Posture; empty without manual skills
 
     # -- derived tables ------------------------------------------------------------------
     @property
@@ -395,6 +407,26 @@ def _servo_gains(reader):
     return MappingProxyType(gains)
 
 
+def _postures(reader, arms, torso):
+    postures = {}
+    for name in reader.doc:
+        if name not in POSTURES:
+            raise reader.error(f'unknown posture {name!r}; the skills use {", ".join(POSTURES)}',
+                               reader._path(str(name)))
+    for name in (POSTURES if reader.doc else ()):
+        entry = reader.child(name)
+        angle = entry.number('torso', positive=False) if torso is not None else None
+        values = entry.child('arms')
+        by_arm = {}
+        for side, arm in arms.items():
+            by_arm[side] = values.vector(side, len(arm.joints))
+        values.done()
+        entry.done()
+        postures[name] = Posture(angle, MappingProxyType(by_arm))
+    reader.used.update(reader.doc)
+    return MappingProxyType(postures)
+
+
 def _signs(reader):
     signs = {}
     for key in reader.doc:
@@ -459,13 +491,16 @@ def profile_from_dict(doc, path='<profile>'):
     arms_reader.used.update(arms_reader.doc)
     collision = _collision(top.child('collision'))
     skills = _skills(top.child('skills'), arms)
+    manual = [k for k in skills if k != 'orbit']
+    postures = _postures(top.child('postures', {} if not manual else ...), arms, torso)
     sim = top.child('simulation', {})
     gains = _servo_gains(sim.child('servo_gains', {}))
     opening = _signs(sim.child('grasp_opening_joints', {}))
     sim.done()
     top.done()
     profile = RobotProfile(name, str(path), urdf, camera, base, controllers, frames, head, torso,
-                           MappingProxyType(arms), collision, skills, gains, opening)
+                           MappingProxyType(arms), collision, skills, gains, opening,
+                           postures)
     if not profile.urdf_from_topic:
         check_against_urdf(profile, _urdf_names(urdf, path))
     return profile
@@ -511,6 +546,7 @@ def check_against_urdf(profile, urdf_names):
 
 
 __all__ = ['Arm', 'Base', 'BodyShape', 'CollisionGeometry', 'Controller', 'Frames', 'Head',
-           'OrbitLimits', 'PROFILE_SPEC', 'ProfileError', 'RobotProfile', 'SKILLS', 'Torso',
+           'OrbitLimits', 'POSTURES', 'PROFILE_SPEC', 'Posture', 'ProfileError', 'RobotProfile',
+           'SKILLS', 'Torso',
            'check_against_urdf', 'default_profile_path', 'load_profile', 'profile_from_dict',
            'with_profile_defaults']

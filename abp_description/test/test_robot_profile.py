@@ -154,9 +154,27 @@ def test_a_robot_without_torso_or_lift(tmp_path):
     doc = ubot_doc()
     del doc['torso']
     doc['skills'] = {'orbit': None, 'push': {'arms': ['right']}}
+    _refused(tmp_path, doc, 'postures.home', 'unknown key(s) torso')   # no torso to set
+    for posture in doc['postures'].values():
+        del posture['torso']
     profile = load_profile(write(tmp_path, doc))
     assert profile.torso is None and not profile.has_skill('lift')
     assert profile.skill_arms('push') == ('right',)
+    assert profile.postures['home'].torso is None
+
+
+def test_postures_fit_the_arms(tmp_path):
+    doc = ubot_doc()
+    doc['postures']['ready']['arms']['left'] = [0.0, 0.0]
+    _refused(tmp_path, doc, 'postures.ready.arms.left', 'list of 4 numbers')
+    doc = ubot_doc()
+    del doc['postures']
+    _refused(tmp_path, doc, 'postures', 'missing')     # the manual skills need them
+    doc['skills'] = {'orbit': None}
+    assert not load_profile(write(tmp_path, doc, 'orbit_only.yaml')).postures
+    doc = ubot_doc()
+    doc['postures']['rest'] = doc['postures']['home']
+    _refused(tmp_path, doc, "unknown posture 'rest'")
 
 
 PLANAR_URDF = """<?xml version="1.0"?>

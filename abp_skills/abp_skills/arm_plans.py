@@ -11,7 +11,7 @@ from abp_description.robot_profile import ORBIT_FIELDS
 
 from .base_motion import BaseLimits
 from .collision import SelfCollision
-from .ik import HandIK, mirror_arm
+from .ik import HandIK
 from .motion_profiles import (
     Limits,
     SampledTrajectory,
@@ -22,19 +22,14 @@ from .motion_profiles import (
 )
 from .plan_types import CubeFrame, Phase, PlanError, SkillConfig, SkillPlan
 
-__all__ = ['ArmPlanner', 'HOME_ARM', 'READY_ARM', 'READY_TORSO', 'REACH_ARM', 'REACH_TORSO',
-           'default_config']
+__all__ = ['ArmPlanner', 'default_config']
 
-# Folded arms (in front of the chest, clear of the wheels): left arm joint values;
-# the right arm mirrors them.
-HOME_ARM = (0.5, 0.2, 0.0, -2.0)
-# A forward reach towards the floor: a seed for the IK of the manual skills.
-REACH_ARM = (-1.2, 0.1, 0.0, -0.45)
-REACH_TORSO = 1.0
-# Arms raised forward and a little apart, torso half down: the via posture between home
-# and the postures near the cube (keeps the arms clear of the chassis and torso).
-READY_ARM = (-0.9, 0.25, 0.0, -1.0)
-READY_TORSO = 0.3
+# The postures (home, ready, reach) are the robot profile's (`RobotProfile.postures`): for
+# the uBot-6 folded arms in front of the chest, clear of the wheels (home); arms raised
+# forward and a little apart, torso half down, between home and the postures near the
+# cube, clear of the chassis and torso (ready); a forward reach towards the floor, the IK
+# seed of the manual skills (reach).
+READY_TORSO_MARGIN = 0.1   # rad: a torso bent further than ready's goes home via ready
 
 
 def default_config(profile):
@@ -71,40 +66,38 @@ class ArmPlanner:
         self.joint_limits = Limits(vel, self.config.joint_acceleration, self.config.joint_jerk)
 
     # -- postures ---------------------------------------------------------------------
-    def _set_arm(self, q, side, values):
-        values = values if side == 'left' else mirror_arm(values)
+    def _set_arm(self, q, side, posture):
+        values = self.profile.postures[posture].arms[side]
         for name, v in zip(self.profile.arms[side].joints, values):
             q[self.kin.joint_index(name)] = v
+        return q
+
+    def _set_posture(self, q, posture):
+        """The torso and every arm at the profile's `posture`."""
+        self._set_torso(q, self.profile.postures[posture].torso)
+        for side in self.sides:
+            self._set_arm(q, side, posture)
         return q
 
     def home(self, q=None, look=None):
         """Torso upright, arms folded, head looking at `look` (base_link) if given."""
         q = self.kin.neutral() if q is None else np.array(q, dtype=float)
-        self._set_torso(q, 0.0)
-        for side in self.sides:
-            self._set_arm(q, side, HOME_ARM)
+        self._set_posture(q, 'home')
         if look is not None:
             q, _ = look_at(self.kin, q, look)
         return self.kin.clip(q)
 
     def reach_seed(self, q):
-        q = np.array(q, dtype=float)
-        self._set_torso(q, REACH_TORSO)
-        for side in self.sides:
-            self._set_arm(q, side, REACH_ARM)
-        return q
+        return self._set_posture(np.array(q, dtype=float), 'reach')
 
     def ready(self, q, look=None):
-        q = np.array(q, dtype=float)
-        self._set_torso(q, READY_TORSO)
-        for side in self.sides:
-            self._set_arm(q, side, READY_ARM)
+        q = self._set_posture(np.array(q, dtype=float), 'ready')
         if look is not None:
             q, _ = look_at(self.kin, q, look)
         return self.kin.clip(q)
 
     def _set_torso(self, q, value):
-        if self._torso is not None:
+        if self._torso is not None and value is not None:
             q[self._torso] = value
 
     def _torso_pitch(self, q):
@@ -114,9 +107,9 @@ class ArmPlanner:
         """Keep the idle arms (`sides`) folded as at home, compensating the torso pitch."""
         q = q.copy()
         for side in sides:
-            self._set_arm(q, side, HOME_ARM)
+            self._set_arm(q, side, 'home')
             i = self.kin.joint_index(self.profile.arms[side].joints[0])
-            q[i] = HOME_ARM[0] - self._torso_pitch(q)
+            q[i] = self.profile.postures['home'].arms[side][0] - self._torso_pitch(q)
         return self.kin.clip(q)
 
     # -- building blocks ----------------------------------------------------------------
@@ -376,6 +369,7 @@ class ArmPlanner:
         if np.max(np.abs(q[arms] - q_home[arms])) <= tolerance:
             return None
         via = []
-        if self._torso_pitch(q) > READY_TORSO + 0.1:
+        ready_torso = self.profile.postures['ready'].torso or 0.0
+        if self._torso_pitch(q) > ready_torso + READY_TORSO_MARGIN:
             via.append(self.ready(q, look))
         return self._free_move(q, [*via, q_home])

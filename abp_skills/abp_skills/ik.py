@@ -19,12 +19,6 @@ import pinocchio as pin
 from abp_description.kinematics import RobotKinematics
 
 
-def mirror_arm(values_left):
-    """Right-arm joint values mirroring left-arm ones (roll and yaw change sign)."""
-    pitch, roll, yaw, elbow = values_left
-    return (pitch, -roll, -yaw, elbow)
-
-
 @dataclass
 class IKResult:
     """Outcome of an IK solve: the full joint vector (13, /joint_states order)."""

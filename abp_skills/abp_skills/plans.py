@@ -40,7 +40,7 @@ import numpy as np
 
 from abp_description.frames import se2_compose
 
-from .arm_plans import HOME_ARM, REACH_ARM, REACH_TORSO, READY_ARM, READY_TORSO, ArmPlanner
+from .arm_plans import ArmPlanner
 from .base_motion import plan_orbit
 from .plan_types import (
     ACTIONS,
@@ -59,8 +59,7 @@ from .plan_types import (
 
 __all__ = ['ACTIONS', 'APPROACH_BEARING_TOLERANCE', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS',
            'ORBIT_ANGLES_DEG', 'PHASES', 'Phase', 'PlanError', 'SkillConfig', 'SkillPlan',
-           'SkillPlanner', 'YAW_STEP_DEG', 'HOME_ARM', 'READY_ARM', 'READY_TORSO', 'REACH_ARM',
-           'REACH_TORSO']
+           'SkillPlanner', 'YAW_STEP_DEG']
 
 
 class SkillPlanner(ArmPlanner):

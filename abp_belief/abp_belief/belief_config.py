@@ -3,6 +3,7 @@
 `abp_common.parameters.declare_all`."""
 
 from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
+from abp_description.robot_profile import PROFILE_SPEC
 
 BELIEF_SPECS = (
     ParamSpec('top_k', INT, 10, 'Number of objects and aspect nodes listed in /abp/belief.',
@@ -12,8 +13,10 @@ BELIEF_SPECS = (
               'rest).', (0.0, 1e-3)),
     ParamSpec('correct_once_per_action', BOOL, True, 'Use only the first observation after '
               'each executed action (true), or every observation message (false).'),
-    ParamSpec('base_frame', STRING, 'base_link', 'Frame of the aspect observations (the '
-              "aspect matcher's base_frame); observations in another frame are rejected."),
+    ParamSpec('base_frame', STRING, '', 'Frame of the aspect observations (the '
+              "aspect matcher's base_frame); observations in another frame are rejected. "
+              "Empty: the robot profile's base frame."),
+    PROFILE_SPEC,
 )
 
 # Keys of the belief node's own state in its /diagnostics status (the planner quotes them).

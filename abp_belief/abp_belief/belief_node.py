@@ -26,6 +26,7 @@ from abp_common.input_checks import Rejected
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
+from abp_description.robot_profile import load_profile
 from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
 from abp_msgs.srv import ResetBelief
 
@@ -54,7 +55,8 @@ class BeliefNode(ManagedNode):
         self.model_set_id = fingerprint(self.model_set)
         self.step = 0
         self._gate = EvidenceGate(values['correct_once_per_action'])
-        self._frames = ('', values['base_frame'])   # '': the base frame (unset)
+        base_frame = values['base_frame'] or load_profile(values['robot_profile']).frames.base
+        self._frames = ('', base_frame)   # '': the base frame (unset)
         self.health = NodeHealth(self)
         # One stream of time: observations guard the actions' stamps and the reverse.
         self._stamps = self.health.stamp_check()

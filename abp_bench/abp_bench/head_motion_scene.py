@@ -16,11 +16,12 @@ import numpy as np
 from abp_description import camera_intrinsics
 from abp_description.frames import rotation_from_quaternion
 from abp_description.kinematics import RobotKinematics, look_at
+from abp_description.robot_profile import load_profile
 from abp_sim_bridge.flat_renderer import DEFAULT_EDGE, ArcubeRenderer
 
 CUBE_CENTRE = np.array([1.0, 0.0, DEFAULT_EDGE / 2])
 CUBE_TAGS = (0, 1, 2, 3, 4, 5)
-PAN_JOINT = 'head_pan_joint'
+PAN_JOINT = load_profile().head.pan_joint   # the default robot's
 
 
 @dataclass

@@ -24,11 +24,15 @@ import time
 
 import numpy as np
 
+from abp_description.robot_profile import load_profile
+
 from .head_motion_scene import CUBE_CENTRE, HeadMotionScene, cube_centre_from_tags, error_summary
 
 JOINT_STATE_HZ = 200.0
 CAMERA_INFO_EVERY = 10           # joint-state ticks per camera_info
 MODES = ('latest', 'interpolate')
+
+BASE_FRAME = load_profile().frames.base   # the default robot's (the detector's default)
 
 
 def detector_argv(executable, mode):
@@ -161,7 +165,7 @@ class LatencyPlayer:
         out = []
         for stamp_ns in self.frame_stamps():
             msg = self.outputs[mode].get(stamp_ns)
-            if msg is None or msg.header.frame_id != 'base_link':
+            if msg is None or msg.header.frame_id != BASE_FRAME:
                 continue
             tags = [((d.pose.pose.position.x, d.pose.pose.position.y,
                       d.pose.pose.position.z),
@@ -185,7 +189,7 @@ class LatencyPlayer:
 def markdown(result, latency_ms, speed):
     rows = [f'Head pan {speed:g} rad/s, images published {latency_ms:g} ms after their stamp '
             f"(measured: median {result['image_delay_ms']['median']:.1f} ms), "
-            f"{result['frames_sent']} frames; cube centre error in base_link:", '',
+            f"{result['frames_sent']} frames; cube centre error in the base frame:", '',
             '| camera pose from | frames detected | median mm | p95 mm | max mm |',
             '|---|---|---|---|---|']
     names = {'latest': 'newest joint state (before)', 'interpolate': 'joint state at the '

@@ -44,7 +44,6 @@ os.environ.setdefault('OPENBLAS_NUM_THREADS', '1')
 import numpy as np  # noqa: E402
 
 from abp_belief.cube import R_UP  # noqa: E402
-from abp_description.controllers import BODY_JOINTS  # noqa: E402
 from abp_description.frames import rot_z  # noqa: E402
 from abp_description.kinematics import RobotKinematics, look_at  # noqa: E402
 
@@ -92,7 +91,7 @@ def postures(kin):
     plan = planner.plan('lift', q_home, NOMINAL_CENTRE)
     if not plan.ok:
         raise RuntimeError(f'LIFT plan failed: {plan.reason}')
-    body = [kin.joint_index(n) for n in BODY_JOINTS]
+    body = [kin.joint_index(n) for n in kin.profile.body_joints]
     q_pre = q_home.copy()
     q_pre[body] = plan.phases[0].trajectory.positions[-1]
     q_ready = planner.ready(q_home, look=NOMINAL_CENTRE)
@@ -112,16 +111,16 @@ def _median(values):
 
 def _swing(world, kin, sim_seconds, amplitude=0.3, period=4.0):
     """Both arms swing sinusoidally about their start positions for `sim_seconds`."""
-    from abp_description.controllers import CONTROLLERS
     from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
     times = np.arange(0.25, sim_seconds + 0.5, 0.25)
-    for side in ('left', 'right'):
-        joints = CONTROLLERS[f'{side}_arm_controller']
+    for arm in kin.profile.arms.values():
+        controller = arm.controller
+        joints = arm.joints
         q = world.q[[kin.joint_index(j) for j in joints]]
         shape = np.array([1.0, 0.4, 0.5, 0.8])
         points = [TrajectoryPoint(t, q + amplitude * np.sin(2 * np.pi * t / period) * shape)
                   for t in times]
-        world.set_trajectory(f'{side}_arm_controller', list(joints), points)
+        world.set_trajectory(controller, list(joints), points)
 
 
 def drive_command(t, speed=0.3, turn=0.6, period=4.0):
@@ -322,7 +321,6 @@ def hand_across_view(kin, q, cube_in_base, rng, tries=300, reach=0.09):
     """Arms of q moved at random about their posture until a hand lies between the camera
     and the cube, within `reach` of the line of sight (so it may hide part of the cube);
     q unchanged when no sample does. The camera does not move (arm joints only)."""
-    from abp_description.controllers import ARM_JOINTS
     cam = kin.camera_pose(q)[:3, 3]
     ray = cube_in_base - cam
     depth = float(np.linalg.norm(ray))
@@ -330,9 +328,10 @@ def hand_across_view(kin, q, cube_in_base, rng, tries=300, reach=0.09):
     spread = np.array([0.8, 0.4, 0.8, 0.8])     # pitch, roll, yaw, elbow (rad)
     for _ in range(tries):
         cand = q.copy()
-        sides = [('left', 'right')[int(rng.integers(2))]]
+        arms = kin.profile.sides
+        sides = [arms[int(rng.integers(len(arms)))]]
         for side in sides:
-            idx = [kin.joint_index(j) for j in ARM_JOINTS[side]]
+            idx = [kin.joint_index(j) for j in kin.profile.arm_joints[side]]
             cand[idx] += rng.uniform(-1, 1, 4) * spread
         cand = kin.clip(cand)
         for side in sides:
@@ -362,7 +361,7 @@ class SceneMaker:
         self._base_qadr = np.array([m.joint(n).qposadr[0] for n in BASE_JOINTS])
         self._cube_body = m.body(CUBE_BODY).id
         self._cube_qadr = m.joint(m.body(CUBE_BODY).jntadr[0]).qposadr[0]
-        self._optical = m.body('camera_optical_frame').id
+        self._optical = m.body(self.kin.profile.frames.camera_optical).id
         self.data = mujoco.MjData(m)
         self.edge = self.world.cube_spec.edge
         self.tag_edge = self.world.cube_spec.tag_edge
@@ -377,7 +376,7 @@ class SceneMaker:
             name = names[k]
             q = self.postures[name].copy()
             if name == 'home':
-                q[kin.joint_index('torso_pitch_joint')] = rng.uniform(0.0, 1.2)
+                q[kin.joint_index(kin.profile.torso.joint)] = rng.uniform(0.0, 1.2)
             placed = place_robot(kin, q, distance, bearing_in_base)
             if placed is not None:
                 break
@@ -404,7 +403,7 @@ class SceneMaker:
         return qpos, {'posture': name, 'distance': distance, 'up': up,
                       'cube_yaw_deg': float(np.degrees(cube_yaw)),
                       'bearing_deg': float(np.degrees(bearing)),
-                      'torso': float(q[kin.joint_index('torso_pitch_joint')])}
+                      'torso': float(q[kin.joint_index(kin.profile.torso.joint)])}
 
     def ground_truth(self, qpos, max_view_angle_deg=70.0, margin_px=2.0):
         """Per face: tag id, tag pose (world), camera distance, view angle, whether face

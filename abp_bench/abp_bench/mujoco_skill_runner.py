@@ -9,7 +9,6 @@ Used by `outcome_survey` and by the skill-driven tests of the MuJoCo world
 import numpy as np
 
 from abp_belief.cube import R_UP
-from abp_description.controllers import CONTROLLERS
 from abp_description.frames import rot_z
 from abp_description.kinematics import look_at_world
 from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
@@ -61,7 +60,7 @@ def send_trajectories(world, trajectories, start_delay=0.05):
     times, pos, vel = np.concatenate(times), np.vstack(pos), np.vstack(vel)
     names = list(trajectories[0].joint_names)
     stamp = world.time + start_delay
-    for controller, joints in CONTROLLERS.items():
+    for controller, joints in world.kin.profile.controller_joints.items():
         if not all(j in names for j in joints):
             continue
         cols = [names.index(j) for j in joints]

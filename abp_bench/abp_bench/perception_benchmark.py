@@ -32,11 +32,14 @@ import time
 import cv2
 import numpy as np
 
+from abp_description.robot_profile import load_profile
 from abp_perception.detector import TagDetector
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
 # Shared with realistic_suite (perception_scenes), so that it need not import this module.
 from .perception_scenes import random_scene, rotation_deg, update_doc
+
+BASE_FRAME = load_profile().frames.base   # the scenes' world: the default robot's base
 
 DISTANCES = (0.5, 1.0, 1.5, 2.0, 2.5)
 NOISE_LEVELS = {'clean': (0.0, 0.0), 'default': (0.6, 2.0), 'noisy': (1.0, 5.0),
@@ -121,7 +124,7 @@ def run_rigid(gen, models, detector, rng, distances, frames, effects=None):
         fitted = 0
         for _ in range(frames):
             scene = random_scene(gen, models, rng, distance, effects=effects)
-            world = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
+            world = detector.detect(scene.image).in_frame(scene.camera_pose, BASE_FRAME)
             errs = cube_tag_errors(scene, world.detections)
             for k in range(4):
                 acc[k] += errs[k]
@@ -172,7 +175,7 @@ def run_detection(gen, models, detector, rng, distances, frames, level):
             result = detector.detect(scene.image)
             cpu.append(time.thread_time() - t0)
             wall.append(time.perf_counter() - w0)
-            world = result.in_frame(scene.camera_pose, 'base_link')
+            world = result.in_frame(scene.camera_pose, BASE_FRAME)
             *counts, e = score_detections(scene, world.detections)
             acc += np.array(counts)
             errs += e
@@ -191,7 +194,7 @@ def run_matching(gen, models, detector, matcher, rng, trials, distance_range):
     for _ in range(trials):
         distance = float(rng.uniform(*distance_range))
         scene = random_scene(gen, models, rng, distance)
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, BASE_FRAME)
         feats = features_from_detections(result.detections)
         t0, w0 = time.thread_time(), time.perf_counter()
         match = matcher.match(feats)
@@ -223,7 +226,7 @@ def run_robot_matching(gen, models, detector, matcher, rng, trials, kinematics):
         scene, _ = gen.render_robot(kinematics, models.faces[model], state, centre,
                                     yaw_error_deg=float(rng.uniform(-8.0, 8.0)),
                                     distractors=distractors)
-        result = detector.detect(scene.image).in_frame(scene.camera_pose, 'base_link')
+        result = detector.detect(scene.image).in_frame(scene.camera_pose, BASE_FRAME)
         match = matcher.match(features_from_detections(result.detections))
         best = match.best
         ok = best is not None and best.key == scene.aspect
@@ -454,7 +457,7 @@ def main(argv=None):
         lines += [f"### Aspect matching at the robot's working pose, {len(robot_rows)} trials",
                   '',
                   "The robot's head camera (`abp_description` kinematics, head panned and "
-                  "tilted to the cube) with the cube 0.35-0.45 m in front of `base_link` "
+                  "tilted to the cube) with the cube 0.35-0.45 m in front of the base frame "
                   "(the sim bridge's default 0.40 m, also the ORBIT radius): camera "
                   f"{dist.min():.2f}-{dist.max():.2f} m from the cube, "
                   f"{elev.min():.0f}-{elev.max():.0f}° elevation, so the side faces of a "

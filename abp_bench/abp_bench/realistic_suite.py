@@ -49,6 +49,7 @@ import time
 import cv2
 import numpy as np
 
+from abp_description.robot_profile import load_profile
 from abp_perception.detector import (
     RegionSearch,
     TagDetector,
@@ -58,6 +59,8 @@ from abp_perception.detector import (
 from abp_perception.matcher import AspectMatcher, features_from_detections
 
 from .perception_scenes import random_scene, rotation_deg
+
+BASE_FRAME = load_profile().frames.base   # the scenes' world: the default robot's base
 
 CONDITIONS = ('plain', 'textured', 'clutter', 'gradient', 'motion blur', 'jpeg',
               'occlusion', 'all')
@@ -429,7 +432,7 @@ def run(gen, models, rng, frames, seed=0, conditions=CONDITIONS):
             t0 = time.thread_time()
             next_untracked = untracked.detect(ours, moved)
             cpu_untracked = time.thread_time() - t0
-            world = result.in_frame(scene.camera_pose, 'base_link')
+            world = result.in_frame(scene.camera_pose, BASE_FRAME)
             a, wrong_a = score(scene, [(d.tag_id, d.corners, d.pose, d.single_tag_pose)
                                        for d in world.detections], hidden)
             b, wrong_b = score(scene, [(i, c, None if p is None else scene.camera_pose @ p,

@@ -14,7 +14,6 @@ import time
 import numpy as np
 
 from abp_belief.cube import ACTIONS
-from abp_description.controllers import BODY_JOINTS
 from abp_description.kinematics import RobotKinematics
 from abp_skills.base_motion import plan_orbit
 from abp_skills.motion_profiles import joint_trajectory, path_profile
@@ -68,7 +67,8 @@ def run(repeats=200, seed=0):
                  _time(lambda: planner.ik.solve(far, home, seeds=[seed_q]), n_far), ''))
 
     # Ruckig: 11-DOF rest-to-rest segment home -> grasp posture, sampled at 50 ms.
-    idx = [kin.joint_index(n) for n in BODY_JOINTS]
+    body_joints = kin.profile.body_joints
+    idx = [kin.joint_index(n) for n in body_joints]
     goals = []
     for t in targets[:repeats]:
         r = planner.ik.solve(t, home, seeds=[seed_q])
@@ -76,7 +76,7 @@ def run(repeats=200, seed=0):
             goals.append(r.q[idx])
     it3 = iter(goals * (repeats // max(1, len(goals)) + 1))
     rows.append(('Ruckig joint trajectory, 11 DOF, one segment + sampling',
-                 _time(lambda: joint_trajectory(BODY_JOINTS, home[idx], [next(it3)],
+                 _time(lambda: joint_trajectory(body_joints, home[idx], [next(it3)],
                                                 planner.joint_limits), repeats), ''))
     rows.append(('Ruckig path profile (1-D, 8 cm)',
                  _time(lambda: path_profile(0.08, 0.08, 0.3, 2.0), repeats), ''))

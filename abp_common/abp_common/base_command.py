@@ -14,7 +14,6 @@ from .param_spec import STRING, ParamSpec
 TWIST_STAMPED, TWIST = 'twist_stamped', 'twist'
 MESSAGE_TYPES = {TWIST_STAMPED: TwistStamped, TWIST: Twist}
 TYPE_NAMES = {TWIST_STAMPED: 'geometry_msgs/msg/TwistStamped', TWIST: 'geometry_msgs/msg/Twist'}
-BASE_FRAME = 'base_link'
 
 SPECS = (
     ParamSpec('base_command_type', STRING, TWIST_STAMPED, 'Message type of the base '
@@ -31,15 +30,16 @@ def message_type(kind):
     return MESSAGE_TYPES[kind]
 
 
-def command(kind, v, w, stamp=None):
+def command(kind, v, w, stamp=None, base_frame=''):
     """The command driving at v (m/s) and w (rad/s); `stamp` (builtin_interfaces/Time)
-    for TwistStamped, in the base frame as diff_drive_controller expects."""
+    and `base_frame` (the robot profile's) for TwistStamped, in the base frame as
+    diff_drive_controller expects."""
     if kind == TWIST:
         msg = Twist()
         twist = msg
     else:
         msg = TwistStamped()
-        msg.header.frame_id = BASE_FRAME
+        msg.header.frame_id = base_frame
         if stamp is not None:
             msg.header.stamp = stamp
         twist = msg.twist

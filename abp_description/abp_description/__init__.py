@@ -1,4 +1,5 @@
-"""uBot-6-like robot description: where the URDF and camera intrinsics live, and a loader.
+"""The robot description: robot profiles (`robot_profile`: the uBot-6's is the default),
+where their URDF and camera intrinsics live, and a camera intrinsics loader.
 
 Plain Python (no rclpy). Data files are found in the installed share directory when
 ament_index_python knows the package, else in the source tree beside this module.
@@ -9,46 +10,19 @@ from pathlib import Path
 
 import numpy as np
 
-PACKAGE_NAME = 'abp_description'
-URDF_FILE = 'ubot6.urdf'
-CAMERA_FILE = 'camera.yaml'
-
-_SOURCE_ROOT = Path(__file__).resolve().parent.parent
+from .data_files import PACKAGE_NAME  # noqa: F401 (the package name, as before)
 
 
-def _share_dir():
-    """Installed share/abp_description, or None when not installed (or no ament index)."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-    except ImportError:
-        return None
-    try:
-        return Path(get_package_share_directory(PACKAGE_NAME))
-    except Exception:  # PackageNotFoundError and friends: not installed
-        return None
+def urdf_path(profile=None):
+    """Absolute path of the URDF of `profile` (default: the shipped uBot-6 profile)."""
+    from .robot_profile import load_profile
+    return (profile or load_profile()).urdf_file()
 
 
-def _data_file(subdir, name):
-    candidates = []
-    share = _share_dir()
-    if share is not None:
-        candidates.append(share / subdir / name)
-    candidates.append(_SOURCE_ROOT / subdir / name)
-    for path in candidates:
-        if path.is_file():
-            return path
-    tried = ', '.join(str(p) for p in candidates)
-    raise FileNotFoundError(f'{PACKAGE_NAME}: {subdir}/{name} not found (tried {tried})')
-
-
-def urdf_path():
-    """Absolute path of the robot's URDF (str)."""
-    return str(_data_file('urdf', URDF_FILE))
-
-
-def camera_yaml_path():
-    """Absolute path of the head camera's intrinsics YAML (str)."""
-    return str(_data_file('config', CAMERA_FILE))
+def camera_yaml_path(profile=None):
+    """Absolute path of the head camera's intrinsics YAML of `profile` (default: uBot-6)."""
+    from .robot_profile import load_profile
+    return (profile or load_profile()).camera_calibration
 
 
 @dataclass(frozen=True)

@@ -1,27 +1,24 @@
-"""The robot's joint groups and trajectory controllers: the one table every package uses.
+"""The default robot's joint groups and trajectory controllers, read from its profile.
 
 Controller `<name>` takes trajectory_msgs/JointTrajectory on `<name>/joint_trajectory`
-(see abp_common.names) for its joints, in the order listed here.
+(see abp_common.names) for its joints, in the order listed in the profile. These tables
+are the shipped (uBot-6) profile's, for code that serves that robot only (benchmarks);
+a node that takes a `robot_profile` reads `RobotProfile.controller_joints` and friends
+from the profile it loaded instead.
 """
 
-SIDES = ('left', 'right')
-TORSO_JOINT = 'torso_pitch_joint'
-HEAD_JOINTS = ('head_pan_joint', 'head_tilt_joint')
-ARM_JOINTS = {
-    side: tuple(f'{side}_{j}_joint' for j in
-                ('shoulder_pitch', 'shoulder_roll', 'upper_arm_yaw', 'elbow'))
-    for side in SIDES
-}
-WHEEL_JOINTS = ('left_wheel_joint', 'right_wheel_joint')
+from .robot_profile import load_profile
+
+_PROFILE = load_profile()
+SIDES = _PROFILE.sides
+TORSO_JOINT = _PROFILE.torso.joint
+HEAD_JOINTS = (_PROFILE.head.pan_joint, _PROFILE.head.tilt_joint)
+ARM_JOINTS = _PROFILE.arm_joints
+WHEEL_JOINTS = _PROFILE.base.wheel_joints
 # Controller name -> its joints, in message order.
-CONTROLLERS = {
-    'torso_controller': (TORSO_JOINT,),
-    'left_arm_controller': ARM_JOINTS['left'],
-    'right_arm_controller': ARM_JOINTS['right'],
-    'head_controller': HEAD_JOINTS,
-}
+CONTROLLERS = _PROFILE.controller_joints
 # The joints trajectories command, in controller order.
-BODY_JOINTS = tuple(j for joints in CONTROLLERS.values() for j in joints)
+BODY_JOINTS = _PROFILE.body_joints
 
 
 def other_side(side):

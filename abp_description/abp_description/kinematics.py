@@ -1,46 +1,54 @@
-"""Forward kinematics of the uBot-6-like robot on Pinocchio (no rclpy).
+"""Forward kinematics of the robot of a robot profile on Pinocchio (no rclpy).
 
-Joint vectors here are what /joint_states carries: one position per actuated joint
-(13), in `RobotKinematics.joint_names` order. Pinocchio stores each continuous wheel
-joint as (cos, sin), so its own configuration has 15 entries; `to_pinocchio` converts.
-Poses are 4x4 homogeneous matrices in `base_link` (on the floor between the wheels,
-x forward, z up); the base's planar pose in the world comes from odometry.
+Joint vectors here are what /joint_states carries: one position per 1-DOF joint (the
+uBot-6: 13), in `RobotKinematics.joint_names` order. Pinocchio stores each continuous
+joint as (cos, sin); `to_pinocchio` converts. Multi-DOF joints (a floating or planar base
+in the URDF) carry no joint state: they are left out of `joint_names` and held at their
+neutral configuration, because the base's planar pose in the world comes from odometry.
+Poses are 4x4 homogeneous matrices in the profile's base frame (the uBot-6's is on the
+floor between the wheels, x forward, z up).
 """
 
 import numpy as np
 import pinocchio as pin
 
-from abp_description import urdf_path
-from abp_description.controllers import HEAD_JOINTS
 from abp_description.frames import base_to_world
+from abp_description.robot_profile import load_profile
 
-CAMERA_FRAME = 'camera_optical_frame'
-HAND_FRAMES = {'left': 'left_hand_link', 'right': 'right_hand_link'}
-BASE_FRAME = 'base_link'
+# The shipped profile's frames, for callers that serve that robot only.
+_DEFAULT = load_profile()
+CAMERA_FRAME = _DEFAULT.frames.camera_optical
+HAND_FRAMES = _DEFAULT.hand_frames
+BASE_FRAME = _DEFAULT.frames.base
 
 
 class RobotKinematics:
     """Pinocchio model of the robot with a joint-state-shaped interface."""
 
-    def __init__(self, urdf=None, urdf_xml=None):
-        """From the URDF file `urdf` (default: abp's), or from the URDF text `urdf_xml`
-        (a robot_description received on a topic; `urdf_path` then names no file)."""
+    def __init__(self, urdf=None, urdf_xml=None, profile=None):
+        """The robot of `profile` (a RobotProfile; default: the shipped uBot-6 profile),
+        from the URDF file `urdf` (default: the profile's), or from the URDF text
+        `urdf_xml` (a robot_description received on a topic; `urdf_path` then names no
+        file)."""
+        self.profile = profile if profile is not None else load_profile()
         if urdf_xml is not None:
             self.urdf_path = '<robot_description>'
             self.model = pin.buildModelFromXML(urdf_xml)
         else:
-            self.urdf_path = str(urdf) if urdf is not None else urdf_path()
+            self.urdf_path = str(urdf) if urdf is not None else self.profile.urdf_file()
             self.model = pin.buildModelFromUrdf(self.urdf_path)
         self.data = self.model.createData()
-        joints = list(self.model.joints)[1:]  # skip 'universe'
-        self.joint_names = tuple(self.model.names[1:])
-        self._idx_q = np.array([j.idx_q for j in joints])
-        self._idx_v = np.array([j.idx_v for j in joints])
+        named = list(zip(self.model.names[1:], list(self.model.joints)[1:]))  # no 'universe'
+        # Only 1-DOF joints have a joint state; multi-DOF ones stay neutral (module doc).
+        self.multi_dof_joints = tuple(n for n, j in named if j.nv != 1)
+        named = [(n, j) for n, j in named if j.nv == 1]
+        joints = [j for _, j in named]
+        self.joint_names = tuple(n for n, _ in named)
+        self._neutral_pin = pin.neutral(self.model)
+        self._idx_q = np.array([j.idx_q for j in joints], dtype=int)
+        self._idx_v = np.array([j.idx_v for j in joints], dtype=int)
         # A joint with nq == 2 and nv == 1 is a continuous (unbounded) revolute joint.
-        self._continuous = np.array([j.nq == 2 and j.nv == 1 for j in joints])
-        for j in joints:
-            if j.nv != 1:
-                raise ValueError(f'{self.urdf_path}: only 1-DOF joints are supported')
+        self._continuous = np.array([j.nq == 2 for j in joints], dtype=bool)
         lower = self.model.lowerPositionLimit[self._idx_q].copy()
         upper = self.model.upperPositionLimit[self._idx_q].copy()
         lower[self._continuous] = -np.inf
@@ -86,7 +94,7 @@ class RobotKinematics:
         q = np.asarray(q, dtype=float)
         if q.shape != (self.nq,):
             raise ValueError(f'expected {self.nq} joint positions, got shape {q.shape}')
-        q_pin = np.zeros(self.model.nq)
+        q_pin = self._neutral_pin.copy()
         for i, (iq, cont) in enumerate(zip(self._idx_q, self._continuous)):
             if cont:
                 q_pin[iq], q_pin[iq + 1] = np.cos(q[i]), np.sin(q[i])
@@ -119,11 +127,12 @@ class RobotKinematics:
         return {n: self.data.oMf[i].homogeneous.copy() for n, i in zip(frame_names, ids)}
 
     def camera_pose(self, q):
-        """Pose of camera_optical_frame (z forward, x right, y down) in base_link."""
-        return self.frame_pose(q, CAMERA_FRAME)
+        """Pose of the profile's camera optical frame (z forward, x right, y down) in the
+        base frame."""
+        return self.frame_pose(q, self.profile.frames.camera_optical)
 
     def hand_pose(self, q, side):
-        return self.frame_pose(q, HAND_FRAMES[side])
+        return self.frame_pose(q, self.profile.hand_frames[side])
 
     def frame_jacobian(self, q, frame_name):
         """6 x nq Jacobian (linear; angular) of a frame, in base_link-aligned axes."""
@@ -142,7 +151,8 @@ def look_at(kin, q, target_in_base, iterations=12):
     scenes all aim the camera with it."""
     q = np.asarray(q, dtype=float).copy()
     target = np.asarray(target_in_base, dtype=float)
-    i_pan, i_tilt = kin.joint_index(HEAD_JOINTS[0]), kin.joint_index(HEAD_JOINTS[1])
+    head = kin.profile.head
+    i_pan, i_tilt = kin.joint_index(head.pan_joint), kin.joint_index(head.tilt_joint)
 
     def direction_in_camera(q):
         cam = kin.camera_pose(q)

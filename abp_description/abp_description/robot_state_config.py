@@ -6,6 +6,8 @@ ignore_timestamp), and diff_drive_controller's enable_odom_tf for the odometry t
 
 from abp_common.param_spec import BOOL, DOUBLE, STRING, ParamSpec
 
+from .robot_profile import PROFILE_SPEC
+
 URDF_FROM_FILE, URDF_FROM_TOPIC = 'file', 'topic'
 
 ROBOT_STATE_SPECS = (
@@ -14,8 +16,9 @@ ROBOT_STATE_SPECS = (
               "robot_description, latched) or 'topic' (robot_description, latched, from "
               'another node, as on a robot whose bringup publishes it).',
               read_only=True, choices=(URDF_FROM_FILE, URDF_FROM_TOPIC)),
-    ParamSpec('urdf_file', STRING, '', "The URDF file with urdf_source 'file' (empty: "
-              "abp_description's urdf/ubot6.urdf).", read_only=True),
+    ParamSpec('urdf_file', STRING, '', "The URDF file with urdf_source 'file' (empty: the "
+              "robot profile's).", read_only=True),
+    PROFILE_SPEC,
     ParamSpec('publish_frequency', DOUBLE, 50.0,
               'Most joint states per second of their stamps put on /tf (as '
               "robot_state_publisher's publish_frequency); 50 publishes every joint state of "

@@ -40,6 +40,7 @@ from abp_msgs.msg import AspectObservation
 
 from . import urdf_path
 from .kinematics import RobotKinematics
+from .robot_profile import load_profile
 from .robot_state import (
     KinematicTree,
     PoseHistory,
@@ -89,7 +90,8 @@ class RobotStateNode(ManagedNode):
         self.tree = None
         self.urdf_text = None
         if self.values['urdf_source'] == URDF_FROM_FILE:
-            path = self.values['urdf_file'] or urdf_path()
+            path = self.values['urdf_file'] or urdf_path(load_profile(
+                self.values['robot_profile']))
             try:
                 with open(path) as stream:
                     self.urdf_text = stream.read()

@@ -4,6 +4,7 @@ import pytest
 
 import abp_description
 from abp_description.kinematics import RobotKinematics, base_to_world
+from abp_description.robot_profile import default_profile_path
 
 EXPECTED_JOINTS = {
     'left_wheel_joint', 'right_wheel_joint', 'torso_pitch_joint', 'head_pan_joint',
@@ -140,7 +141,12 @@ def test_data_files_found_in_an_installed_share_directory(tmp_path, monkeypatch)
     installed.write_text(open(abp_description.urdf_path()).read())
     camera = share / 'abp_description' / 'config' / 'camera.yaml'
     camera.write_text(open(abp_description.camera_yaml_path()).read())
+    # The default robot profile names both, relative to its own place in the share dir.
+    (share / 'abp_description' / 'profiles').mkdir(parents=True)
+    (share / 'abp_description' / 'profiles' / 'ubot6.yaml').write_text(
+        open(default_profile_path()).read())
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(tmp_path))
     assert abp_description.urdf_path() == str(installed)
     assert abp_description.camera_yaml_path() == str(camera)
     assert abp_description.camera_intrinsics().width == 640
+    assert default_profile_path() == str(share / 'abp_description' / 'profiles' / 'ubot6.yaml')

@@ -61,6 +61,7 @@ from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation
 from abp_description.kinematics import RobotKinematics
+from abp_description.robot_profile import load_profile
 from abp_msgs.msg import TagDetection, TagDetectionArray
 
 from .camera_model import (
@@ -105,9 +106,10 @@ class ArtagDetectorNode(ManagedNode):
 
     def configure(self):
         self._values = declare_all(self, DETECTOR_SPECS)
-        self.kinematics = RobotKinematics(self._values['urdf_file'] or None)
-        self.base_frame = self._values['base_frame']
-        self.camera_frame = self._values['camera_frame']
+        profile = load_profile(self._values['robot_profile'])
+        self.kinematics = RobotKinematics(self._values['urdf_file'] or None, profile=profile)
+        self.base_frame = self._values['base_frame'] or profile.frames.base
+        self.camera_frame = self._values['camera_frame'] or profile.frames.camera_optical
         if not self.kinematics.has_frame(self.camera_frame):
             raise ValueError(f'parameter camera_frame: no frame {self.camera_frame!r} in '
                              f'{self.kinematics.urdf_path}')

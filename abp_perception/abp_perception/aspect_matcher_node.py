@@ -35,6 +35,7 @@ from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.frames import quaternion_from_rotation, rotation_from_quaternion
+from abp_description.robot_profile import load_profile
 from abp_msgs.msg import AspectHypothesis, AspectObservation, Feature, TagDetectionArray
 
 from .matcher import AspectMatcher, normal_sigma_of
@@ -54,7 +55,7 @@ class AspectMatcherNode(ManagedNode):
         values = declare_all(self, MODEL_SET_SPECS + MATCHER_SPECS)
         # The same parameters as the belief node, so both see the same aspects.
         self.model_set = model_set_from_values(values)
-        self.base_frame = values['base_frame']
+        self.base_frame = values['base_frame'] or load_profile(values['robot_profile']).frames.base
         self._config = {name: values[name] for name in MATCHER_PARAMETERS}
         self.matcher = self._build_matcher(self._config)
         self.health = NodeHealth(self)

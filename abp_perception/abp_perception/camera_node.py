@@ -26,6 +26,7 @@ from abp_common.health import NodeHealth
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
+from abp_description.robot_profile import load_profile
 
 from .camera_calibration_file import CalibrationFileError, check_image_size
 from .camera_calibration_file import load as load_calibration
@@ -45,7 +46,8 @@ class CameraNode(ManagedNode):
 
     def configure(self):
         values = declare_all(self, CAMERA_SPECS)
-        self.frame_id = values['frame_id']
+        self.frame_id = (values['frame_id']
+                         or load_profile(values['robot_profile']).frames.camera_optical)
         self.encoding = values['encoding']
         self.period_s = 1.0 / values['rate']
         self.publish_compressed = values['publish_compressed']

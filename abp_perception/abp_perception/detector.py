@@ -68,6 +68,8 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
+from abp_description.robot_profile import load_profile
+
 from .blur_decode import marker_contrast
 from .corners import decode_quads, inside_any_quad, quad_areas, refine_quads
 from .face_search import (
@@ -201,7 +203,7 @@ class TagDetector:
                  marker_size: float = 0.08, refine_corners: bool = True,
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
                  max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
-                 ambiguity_ratio: float = 0.7, camera_frame: str = 'camera_optical_frame',
+                 ambiguity_ratio: float = 0.7, camera_frame: str = '',
                  image_size=None, cube_size: float | None = 0.10, face_search: bool = True,
                  blur_decode: bool = True):
         if not (np.isfinite(marker_size) and marker_size > 0):
@@ -220,7 +222,8 @@ class TagDetector:
         self.max_reprojection_error = float(max_reprojection_error)
         self.min_side_px = float(min_side_px)
         self.ambiguity_ratio = float(ambiguity_ratio)
-        self.camera_frame = camera_frame
+        # '': the camera optical frame of the default robot profile (the uBot-6's).
+        self.camera_frame = camera_frame or load_profile().frames.camera_optical
         if cube_size is not None and not (np.isfinite(cube_size) and cube_size >= 0):
             raise ValueError(f'cube_size must be >= 0 m (0 or None: no rigid cube fit), '
                              f'got {cube_size}')

@@ -18,6 +18,7 @@ from abp_common.param_spec import (
     STRING_ARRAY,
     ParamSpec,
 )
+from abp_description.robot_profile import PROFILE_SPEC
 
 from .detector import DICTIONARY_NAMES
 
@@ -38,8 +39,10 @@ CAMERA_SPECS = (
     ParamSpec('rate', DOUBLE, 10.0, 'Frames published per second (a file or folder is '
               'played at this rate, whatever it was recorded at).', (0.1, 240.0),
               read_only=True),
-    ParamSpec('frame_id', STRING, 'camera_optical_frame', 'header.frame_id of the images '
-              'and camera_info (the tag detector maps it with frame_map).', read_only=True),
+    ParamSpec('frame_id', STRING, '', 'header.frame_id of the images and camera_info (the '
+              "tag detector maps it with frame_map). Empty: the robot profile's camera "
+              'optical frame.', read_only=True),
+    PROFILE_SPEC,
     ParamSpec('encoding', STRING, 'bgr8', 'Encoding of camera/image_raw.', read_only=True,
               choices=CAMERA_ENCODINGS),
     ParamSpec('loop', BOOL, False, 'Play a video file or folder again from the start at its '
@@ -66,14 +69,15 @@ DETECTOR_SPECS = (
     ParamSpec('cube_size', DOUBLE, 0.10, 'Edge of the ARcubes, m: tags on adjacent faces '
               '(centres cube_size / sqrt 2 apart) are fitted as one rigid cube and published '
               'with the poses it implies; 0 = per-tag poses only.', (0.0, 5.0)),
-    ParamSpec('base_frame', STRING, 'base_link', 'Frame of the published poses (robot base).',
-              read_only=True),
-    ParamSpec('camera_frame', STRING, 'camera_optical_frame',
-              'URDF frame of the camera, used for images and camera_info without a frame_id.',
-              read_only=True),
+    PROFILE_SPEC,
+    ParamSpec('base_frame', STRING, '', 'Frame of the published poses (robot base). Empty: '
+              "the robot profile's base frame.", read_only=True),
+    ParamSpec('camera_frame', STRING, '',
+              'URDF frame of the camera, used for images and camera_info without a frame_id. '
+              "Empty: the robot profile's camera optical frame.", read_only=True),
     ParamSpec('frame_map', STRING_ARRAY, None, "Camera driver frames as URDF frames: "
               "'driver_frame:urdf_frame' entries, e.g. "
-              "['camera_color_optical_frame:camera_optical_frame']. A frame_id neither "
+              "['camera_color_optical_frame:<the URDF's optical frame>']. A frame_id neither "
               'mapped nor in the URDF is refused (camera_model.FrameMap).', read_only=True),
     ParamSpec('fixed_camera_pose', DOUBLE_ARRAY, None, 'A camera that does not move (no '
               'robot): [x, y, z, roll, pitch, yaw] (m, deg) of the camera body (x forward, '
@@ -97,8 +101,8 @@ DETECTOR_SPECS = (
               'to this long after the newest (or before the oldest) buffered joint state, '
               'it takes that state, and further out it is refused (joint_state_stamp), s.',
               (0.0, 1.0), read_only=True),
-    ParamSpec('urdf_file', STRING, '', "URDF for the kinematics; empty = abp_description's.",
-              read_only=True),
+    ParamSpec('urdf_file', STRING, '', "URDF for the kinematics; empty = the robot "
+              "profile's.", read_only=True),
     ParamSpec('corner_sigma_px', DOUBLE, 0.08, 'Base corner noise of the covariance model, px.',
               (0.001, 10.0)),
     ParamSpec('max_reprojection_error', DOUBLE, 2.0, 'Drop poses with a larger RMS error, px.',
@@ -122,8 +126,10 @@ DETECTOR_PARAMETERS = ('marker_size', 'cube_size', 'corner_sigma_px', 'max_repro
                        'min_side_px', 'refine_corners', 'second_pass', 'face_search')
 
 MATCHER_SPECS = (
-    ParamSpec('base_frame', STRING, 'base_link', 'Frame the detections must be in (robot '
-              'base; its origin defines the view frame).', read_only=True),
+    ParamSpec('base_frame', STRING, '', 'Frame the detections must be in (robot base; its '
+              "origin defines the view frame). Empty: the robot profile's base frame.",
+              read_only=True),
+    PROFILE_SPEC,
     ParamSpec('voxel_size', DOUBLE, 0.0, 'Hough accumulator voxel, m; 0 = cube_size / 4.',
               (0.0, 1.0)),
     ParamSpec('peak_radius', DOUBLE, 0.0, 'Votes within this distance of a peak support it, '

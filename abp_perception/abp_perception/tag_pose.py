@@ -211,7 +211,7 @@ class TagPoseModel:
     max_reprojection_error: float
     min_side_px: float
     ambiguity_ratio: float
-    camera_frame: str = 'camera_optical_frame'   # as parameter camera_frame
+    camera_frame: str   # URDF frame of the camera (TagDetector's camera_frame)
 
     def pose(self, tag_id, quad, source='aruco'):
         """The Detection of tag `tag_id` at `quad` (4, 2) px (ArUco order), or a

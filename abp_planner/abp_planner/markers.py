@@ -14,24 +14,28 @@ from geometry_msgs.msg import Pose
 from std_msgs.msg import ColorRGBA
 from visualization_msgs.msg import Marker, MarkerArray
 
+from abp_description.robot_profile import load_profile
+
 CUBE_EDGE = 0.10
-BASE_FRAME = 'base_link'   # an observation without a frame is in the base frame
 TOP_OBJECTS_SHOWN = 3
 
 
-def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE):
+def belief_markers(belief, cube_pose, stamp, cube_edge=CUBE_EDGE, base_frame=None):
     """MarkerArray for `belief` (abp_msgs/Belief or None) and `cube_pose`
     ((frame_id, geometry_msgs/Pose, stamp of the observation) or None); `stamp` (now)
-    stamps the DELETEALL sent while there is no cube pose."""
+    stamps the DELETEALL sent while there is no cube pose. `base_frame` (default: the
+    default robot profile's) is the frame of an observation without one."""
+    if base_frame is None:
+        base_frame = load_profile().frames.base
     markers = MarkerArray()
     if cube_pose is None:
         clear = Marker(ns='abp', id=0, action=Marker.DELETEALL)
-        clear.header.frame_id, clear.header.stamp = BASE_FRAME, stamp
+        clear.header.frame_id, clear.header.stamp = base_frame, stamp
         markers.markers.append(clear)
         return markers
     frame_id, pose, seen = cube_pose
     cube = Marker(ns='abp_cube', id=0, type=Marker.CUBE, action=Marker.ADD, pose=pose)
-    cube.header.frame_id = frame_id or BASE_FRAME
+    cube.header.frame_id = frame_id or base_frame
     cube.header.stamp = seen
     cube.scale.x = cube.scale.y = cube.scale.z = cube_edge
     confidence = float(belief.probabilities[0]) if belief and belief.probabilities else 0.0

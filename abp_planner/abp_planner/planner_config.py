@@ -4,6 +4,7 @@
 `ros2 param set` applies to the next episode. Add a parameter by adding a row here."""
 
 from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
+from abp_description.robot_profile import PROFILE_SPEC
 
 from .planner import PLANNER_NAMES
 from .stopping import DEFAULT_TARGET_ERROR, STOP_RULES
@@ -41,6 +42,7 @@ PLANNER_SPECS = (
     ParamSpec('use_feasibility', BOOL, True, 'Ask abp/skills/check_feasibility before each '
               'decision; infeasible actions fall through to the next best.'),
     ParamSpec('planner_seed', INT, 0, 'Seed of the random planner.', (0, 2**31 - 1)),
+    PROFILE_SPEC,   # the base frame of the RViz markers
 )
 
 __all__ = ['PLANNER_SPECS']

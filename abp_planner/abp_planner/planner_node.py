@@ -39,6 +39,7 @@ from abp_common.input_checks import Rejected
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
+from abp_description.robot_profile import load_profile
 from abp_msgs.action import Recognize
 from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
 from abp_msgs.srv import CheckFeasibility, ResetBelief
@@ -72,6 +73,7 @@ class PlannerNode(ManagedNode):
 
     def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
+        self._base_frame = load_profile(values['robot_profile']).frames.base   # markers
         self.model_set = model_set_from_values(values)
         self.model_set_id = fingerprint(self.model_set)
         # The twin classes of the stopping rule depend on the model set only: once.
@@ -366,7 +368,8 @@ class PlannerNode(ManagedNode):
     def _publish_markers(self):
         belief = self._beliefs.latest()
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
-                                                 self.get_clock().now().to_msg()))
+                                                 self.get_clock().now().to_msg(),
+                                                 base_frame=self._base_frame))
 
 
 def _of_the_belief_node(publishers):

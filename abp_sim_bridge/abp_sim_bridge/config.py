@@ -23,6 +23,7 @@ from abp_common.param_spec import (
     probability,
 )
 from abp_common.param_spec import defaults as spec_defaults
+from abp_description.robot_profile import PROFILE_SPEC
 
 from .flat_renderer import ImageEffects
 from .rules_contact import ContactParams
@@ -40,6 +41,7 @@ WORLDS = ('rules', 'mujoco')
 MUJOCO_ONLY = ' (world mujoco only)'
 
 PARAMETERS = (
+    PROFILE_SPEC,   # first: the node reads it before the others (their robot defaults)
     ParamSpec('world', STRING, 'mujoco', 'Which world: mujoco = MuJoCo physics and rendering '
               '(outcomes from mass, friction and contacts); rules = the contact rules of '
               'docs/SIM_BRIDGE.md and the flat renderer (fast, for tests).', choices=WORLDS,

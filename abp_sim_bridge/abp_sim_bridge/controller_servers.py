@@ -14,7 +14,6 @@ from rclpy.callback_groups import ReentrantCallbackGroup
 
 from abp_common import input_checks
 from abp_common.input_checks import Rejected
-from abp_description.controllers import CONTROLLERS
 
 from .controller_goals import INVALID_GOAL, GoalEnd, GoalMonitor
 from .joint_trajectory_follower import TrajectoryError, TrajectoryPoint
@@ -32,15 +31,16 @@ class ControllerActions:
 
     def __init__(self, node, stopped_velocity_tolerance):
         self.node = node
+        self._controllers = node.kin.profile.controller_joints   # the robot profile's
         self._monitors = {c: GoalMonitor(joints, stopped_velocity_tolerance)
-                          for c, joints in CONTROLLERS.items()}
+                          for c, joints in self._controllers.items()}
         self._ends = {}    # goal id -> (threading.Event, [GoalEnd]) of running goals
 
     def serve(self):
         """Create the action servers (at activation)."""
         node = self.node
         group = ReentrantCallbackGroup()
-        for controller in CONTROLLERS:
+        for controller in self._controllers:
             ActionServer(
                 node, FollowJointTrajectory, FOLLOW_JOINT_TRAJECTORY.format(controller=controller),
                 execute_callback=self._execute_goal,
@@ -54,7 +54,7 @@ class ControllerActions:
         """Accept a goal the controller can follow; refuse the rest with its error."""
         follower = self.node.sim.controllers[controller][0]
         try:
-            check_trajectory(goal.trajectory, CONTROLLERS[controller])
+            check_trajectory(goal.trajectory, self._controllers[controller])
             follower.check(goal.trajectory.joint_names, trajectory_points(goal.trajectory))
             for tolerance in (*goal.path_tolerance, *goal.goal_tolerance):
                 input_checks.finite('tolerance', [tolerance.position, tolerance.velocity])

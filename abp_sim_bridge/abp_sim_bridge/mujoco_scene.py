@@ -1,6 +1,6 @@
 """The MuJoCo scene of the sim bridge, generated at start (plain Python + mujoco, no rclpy).
 
-One source of the robot's geometry: the project's URDF (`abp_description.urdf_path()`),
+One source of the robot's geometry: the robot profile's URDF (`abp_description.robot_profile`),
 loaded by MuJoCo's URDF importer with fixed links kept as bodies and visual geoms kept,
 plus these MJCF additions made with `mujoco.MjSpec`:
 
@@ -36,8 +36,8 @@ import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
 from abp_belief.cube import FACE_NORMALS  # noqa: E402
-from abp_description import camera_intrinsics, urdf_path  # noqa: E402
-from abp_description.controllers import WHEEL_JOINTS  # noqa: E402
+from abp_description import camera_intrinsics  # noqa: E402
+from abp_description.robot_profile import load_profile  # noqa: E402
 
 from .flat_renderer import FACE_TAG_AXES  # noqa: E402
 
@@ -45,27 +45,17 @@ BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 CUBE_BODY = 'arcube'
 CUBE_GEOM = 'arcube_box'
 CAMERA_NAME = 'head_camera'
-CAMERA_LINK = 'camera_link'
-HAND_BODIES = {'left': 'left_hand_link', 'right': 'right_hand_link'}
-WHEEL_BODIES = ('left_wheel_link', 'right_wheel_link')
 FLOOR_GEOM = 'floor'
+HAND_GEOM_SUFFIX = '_ball'   # a hand body's collision pad: '<hand frame>_ball'
 # Collision bits: robot geoms (ROBOT) touch floor and cube (WORLD) but never each other.
 WORLD_BIT, ROBOT_BIT = 1, 2
 COLLISION_GROUP = 3  # collision copies of the URDF geoms: not drawn by default
 TAG_DICTIONARY = cv2.aruco.DICT_4X4_50
 
-# Servo gains per joint: (kp N m/rad, kv N m s/rad, armature kg m^2). Stiff enough that the
-# hands follow the skills' paths within millimetres and squeeze a grasped cube with ~10-20 N,
-# with armature (reflected motor inertia) that keeps them stable at a 2 ms step.
-SERVO_GAINS = {
-    'torso_pitch_joint': (3000.0, 150.0, 0.2),
-    'shoulder_pitch': (600.0, 30.0, 0.05),
-    'shoulder_roll': (600.0, 30.0, 0.05),
-    'upper_arm_yaw': (300.0, 12.0, 0.03),
-    'elbow': (400.0, 16.0, 0.03),
-    'head_pan_joint': (60.0, 3.0, 0.01),
-    'head_tilt_joint': (60.0, 3.0, 0.01),
-}
+# Servo gains per joint, (kp N m/rad, kv N m s/rad, armature kg m^2), come from the robot
+# profile's simulation.servo_gains: for the uBot-6 stiff enough that the hands follow the
+# skills' paths within millimetres and squeeze a grasped cube with ~10-20 N, with armature
+# (reflected motor inertia) that keeps them stable at a 2 ms step.
 BASE_GAINS = {'base_x': 1500.0, 'base_y': 1500.0, 'base_yaw': 300.0}  # velocity servo kv
 BASE_FORCE = {'base_x': 400.0, 'base_y': 400.0, 'base_yaw': 150.0}   # N, N m
 
@@ -155,9 +145,14 @@ def tag_texture(tag_id, edge, tag_edge, pixels=256):
     return np.ascontiguousarray(np.repeat(img[:, :, None], 3, axis=2))
 
 
-def _urdf_spec():
+def hand_bodies(profile):
+    """{side: MuJoCo body of the hand}: the hand frames (links) of the profile."""
+    return profile.hand_frames
+
+
+def _urdf_spec(profile):
     """The URDF as an MjSpec with fixed links as bodies and visual geoms kept."""
-    with open(urdf_path()) as stream:
+    with open(profile.urdf_file()) as stream:
         text = stream.read()
     head = text.index('>', text.index('<robot')) + 1
     options = ('<mujoco><compiler fusestatic="false" discardvisual="false" '
@@ -165,18 +160,23 @@ def _urdf_spec():
     return mujoco.MjSpec.from_string(text[:head] + options + text[head:])
 
 
-def _servo_gains(joint):
-    if joint in SERVO_GAINS:
-        return SERVO_GAINS[joint]
-    for key, gains in SERVO_GAINS.items():
+def _servo_gains(joint, gains):
+    """The profile's gains of `joint`: by its name, else by a key that is part of it."""
+    if joint in gains:
+        return gains[joint]
+    for key, value in gains.items():
         if key in joint:
-            return gains
-    raise KeyError(f'no servo gains for joint {joint!r}')
+            return value
+    raise KeyError(f'no servo gains for joint {joint!r} (robot profile simulation.servo_gains)')
 
 
-def _setup_robot(spec, settings):
+def _setup_robot(spec, settings, profile):
     """Planar base joints, servos, collision filters and gravity compensation."""
-    base = spec.body('base_link')
+    base = spec.body(profile.frames.base)
+    wheel_joints = set(profile.base.wheel_joints)
+    wheel_bodies = {j.parent.name for j in spec.joints if j.name in wheel_joints}
+    hands = set(hand_bodies(profile).values())
+    head_joints = {profile.head.pan_joint, profile.head.tilt_joint}
     for name, kind, axis in (('base_x', mujoco.mjtJoint.mjJNT_SLIDE, (1, 0, 0)),
                              ('base_y', mujoco.mjtJoint.mjJNT_SLIDE, (0, 1, 0)),
                              ('base_yaw', mujoco.mjtJoint.mjJNT_HINGE, (0, 0, 1))):
@@ -189,11 +189,11 @@ def _setup_robot(spec, settings):
             if geom.contype == 0 and geom.conaffinity == 0:
                 continue  # visual copy
             geom.group = COLLISION_GROUP
-            wheel = body.name in WHEEL_BODIES
+            wheel = body.name in wheel_bodies
             geom.contype = 0 if wheel else ROBOT_BIT
             geom.conaffinity = 0
-            if body.name in HAND_BODIES.values():  # the pads
-                geom.name = f'{body.name}_ball'
+            if body.name in hands:  # the pads
+                geom.name = body.name + HAND_GEOM_SUFFIX
                 geom.friction = [settings.hand_friction, settings.hand_torsional_friction,
                                  0.0001]
                 geom.condim = 4 if settings.hand_torsional_friction > 0 else 3
@@ -206,11 +206,11 @@ def _setup_robot(spec, settings):
             act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
             act.forcerange = [-BASE_FORCE[joint.name], BASE_FORCE[joint.name]]
             continue
-        if joint.name in WHEEL_JOINTS:
+        if joint.name in wheel_joints:
             joint.damping = [0.05, 0.0, 0.0]
             continue
-        kp, kv, armature = _servo_gains(joint.name)
-        if 'head' not in joint.name:
+        kp, kv, armature = _servo_gains(joint.name, profile.servo_gains)
+        if joint.name not in head_joints:
             kp, kv = kp * scale, kv * np.sqrt(scale)
         joint.armature = armature
         joint.actgravcomp = True
@@ -223,12 +223,12 @@ def _setup_robot(spec, settings):
             act.forcerange = [-effort, effort]
 
 
-def _add_camera(spec, settings):
-    intr = camera_intrinsics()
+def _add_camera(spec, settings, profile):
+    intr = camera_intrinsics(profile.camera_calibration)
     height = settings.height or intr.height
     # Same vertical field of view at any image height: fy scales with the height.
     fovy = np.degrees(2 * np.arctan(intr.height / (2 * intr.fy)))
-    optical = spec.body('camera_optical_frame')
+    optical = spec.body(profile.frames.camera_optical)
     # MuJoCo camera axes in the optical frame: x = x, y = -y, z = -z.
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.diag([1.0, -1.0, -1.0]).ravel())
@@ -302,11 +302,13 @@ def _add_distractors(spec, distractors):
                                 conaffinity=0, group=1)
 
 
-def build_spec(cube=None, settings=None, distractors=()):
-    """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere."""
+def build_spec(cube=None, settings=None, distractors=(), profile=None):
+    """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere;
+    `profile`: the robot (default: the uBot-6 profile)."""
     cube = cube or CubeSpec()
     settings = settings or SceneSettings()
-    spec = _urdf_spec()
+    profile = profile if profile is not None else load_profile()
+    spec = _urdf_spec(profile)
     spec.modelname = 'abp_scene'
     spec.option.timestep = settings.timestep
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
@@ -314,7 +316,7 @@ def build_spec(cube=None, settings=None, distractors=()):
     spec.option.noslip_iterations = 2  # grasped objects do not creep out of the hands
     spec.visual.quality.shadowsize = 4096 if settings.shadows else 0
     spec.visual.quality.offsamples = int(settings.offsamples)
-    intr = camera_intrinsics()
+    intr = camera_intrinsics(profile.camera_calibration)
     width = settings.width or intr.width
     height = settings.height or intr.height
     spec.visual.global_.offwidth = max(int(width), 640)
@@ -322,8 +324,8 @@ def build_spec(cube=None, settings=None, distractors=()):
     spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
     spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
     spec.visual.rgba.haze = [0.62, 0.66, 0.7, 1.0]
-    _setup_robot(spec, settings)
-    _add_camera(spec, settings)
+    _setup_robot(spec, settings, profile)
+    _add_camera(spec, settings, profile)
     world = spec.worldbody
     checker = spec.add_texture(name='floor_grid', type=mujoco.mjtTexture.mjTEXTURE_2D,
                                builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256,
@@ -340,11 +342,11 @@ def build_spec(cube=None, settings=None, distractors=()):
     return spec
 
 
-def build_model(cube=None, settings=None, distractors=()):
+def build_model(cube=None, settings=None, distractors=(), profile=None):
     """(MjModel, MjSpec) of the scene."""
-    spec = build_spec(cube, settings, distractors)
+    spec = build_spec(cube, settings, distractors, profile)
     return spec.compile(), spec
 
 
-__all__ = ['BASE_JOINTS', 'CAMERA_NAME', 'CUBE_BODY', 'CUBE_GEOM', 'CubeSpec', 'HAND_BODIES',
-           'SceneSettings', 'build_model', 'build_spec', 'tag_texture']
+__all__ = ['BASE_JOINTS', 'CAMERA_NAME', 'CUBE_BODY', 'CUBE_GEOM', 'CubeSpec', 'HAND_GEOM_SUFFIX',
+           'SceneSettings', 'build_model', 'build_spec', 'hand_bodies', 'tag_texture']

@@ -33,7 +33,6 @@ import numpy as np
 
 from abp_belief.cube import FACE_NORMALS, NUM_YAWS, R_UP
 from abp_description import camera_intrinsics
-from abp_description.controllers import CONTROLLERS, SIDES, WHEEL_JOINTS
 from abp_description.frames import se2_between, se2_compose, wrap_rad
 from abp_description.kinematics import RobotKinematics
 
@@ -43,10 +42,11 @@ from .mujoco_scene import (
     CAMERA_NAME,
     CUBE_BODY,
     CUBE_GEOM,
-    HAND_BODIES,
+    HAND_GEOM_SUFFIX,
     CubeSpec,
     SceneSettings,
     build_model,
+    hand_bodies,
     mujoco,
 )
 from .world_interface import CommandInputs, ContactEvent
@@ -225,14 +225,17 @@ class MujocoWorld(CommandInputs):
             floor_friction=s.floor_friction * s.friction_scale,
             servo_stiffness_scale=s.servo_stiffness_scale, shadows=s.shadows,
             offsamples=s.offsamples, width=s.width, height=s.height)
-        self.model, self.spec = build_model(self.cube_spec, self.scene_settings, distractors)
+        profile = kin.profile
+        self.model, self.spec = build_model(self.cube_spec, self.scene_settings, distractors,
+                                            profile)
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.joint_names = kin.joint_names
         self._qadr = np.array([m.joint(n).qposadr[0] for n in kin.joint_names])
         self._vadr = np.array([m.joint(n).dofadr[0] for n in kin.joint_names])
-        self._wheel_idx = np.array([kin.joint_index(n) for n in WHEEL_JOINTS])
-        servo_names = [n for n in kin.joint_names if n not in WHEEL_JOINTS]
+        wheels = profile.base.wheel_joints
+        self._wheel_idx = np.array([kin.joint_index(n) for n in wheels], dtype=int)
+        servo_names = [n for n in kin.joint_names if n not in wheels]
         self._servo_idx = np.array([kin.joint_index(n) for n in servo_names])
         self._servo_act = np.array([m.actuator(n).id for n in servo_names])
         # Position servo: force = kp (ctrl - q) - kv qd; ctrl = q* + (kv / kp) qd* tracks qd*.
@@ -244,9 +247,11 @@ class MujocoWorld(CommandInputs):
         self._cube_body = m.body(CUBE_BODY).id
         self._cube_qadr = m.joint(m.body(CUBE_BODY).jntadr[0]).qposadr[0]
         self._cube_geom = m.geom(CUBE_GEOM).id
-        self._hand_body = {side: m.body(HAND_BODIES[side]).id for side in SIDES}
-        self._hand_geom = {side: m.geom(f'{HAND_BODIES[side]}_ball').id for side in SIDES}
-        self._optical_body = m.body('camera_optical_frame').id
+        hands = hand_bodies(profile)
+        self._hand_body = {side: m.body(body).id for side, body in hands.items()}
+        self._hand_geom = {side: m.geom(body + HAND_GEOM_SUFFIX).id
+                           for side, body in hands.items()}
+        self._optical_body = m.body(profile.frames.camera_optical).id
         self._face_geoms = np.array([m.geom(f'arcube_face_{f}').id for f in range(6)])
         self.heavy_face = cube.heavy_face
         self.edge = cube.edge
@@ -271,7 +276,7 @@ class MujocoWorld(CommandInputs):
         d.ctrl[self._servo_act] = q0[self._servo_idx] + self._offsets[self._servo_idx]
         mujoco.mj_forward(m, d)
         self.controllers = {}
-        for name, joints in CONTROLLERS.items():
+        for name, joints in profile.controller_joints.items():
             idx = np.array([kin.joint_index(j) for j in joints])
             follower = TrajectoryFollower(joints, kin.lower_limits[idx], kin.upper_limits[idx])
             follower.hold(q0[idx])
@@ -299,10 +304,10 @@ class MujocoWorld(CommandInputs):
         if len(s.joint_offsets):
             offsets += np.asarray(s.joint_offsets, dtype=float)
         if self._grasp_opening:
-            # Roll outwards is + on the left arm and - on the right (URDF comments).
+            # The profile names the joints that open the hands and their outward sign.
             roll = self._grasp_opening / ARM_REACH
-            offsets[kin.joint_index('left_shoulder_roll_joint')] += roll
-            offsets[kin.joint_index('right_shoulder_roll_joint')] -= roll
+            for joint, sign in kin.profile.grasp_opening_joints.items():
+                offsets[kin.joint_index(joint)] += sign * roll
         return offsets
 
     def set_grasp_opening(self, opening):
@@ -581,9 +586,12 @@ class MujocoWorld(CommandInputs):
 
 
 def _wheel_geometry(kin):
+    """(radius, track) of the profile's wheel joints (left, right): the axle height above
+    the base frame on the floor, and the wheels' distance apart."""
     model = kin.model
-    left = model.jointPlacements[model.getJointId(WHEEL_JOINTS[0])].translation
-    right = model.jointPlacements[model.getJointId(WHEEL_JOINTS[1])].translation
+    left_joint, right_joint = kin.profile.base.wheel_joints
+    left = model.jointPlacements[model.getJointId(left_joint)].translation
+    right = model.jointPlacements[model.getJointId(right_joint)].translation
     return float(left[2]), float(abs(left[1] - right[1]))
 
 

@@ -26,9 +26,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 import pinocchio as pin
 
-from abp_description.controllers import CONTROLLERS, SIDES, WHEEL_JOINTS
 from abp_description.frames import base_to_world, integrate_twist, wrap_rad
-from abp_description.kinematics import HAND_FRAMES, RobotKinematics, look_at_world
+from abp_description.kinematics import RobotKinematics, look_at_world
 
 from .joint_trajectory_follower import TrajectoryFollower
 from .rules_contact import ContactParams, ContactTracker
@@ -89,13 +88,14 @@ class RulesWorld(CommandInputs):
         self._vmax = np.where(np.isfinite(kin.velocity_limits) & (kin.velocity_limits > 0),
                               kin.velocity_limits, np.inf)
         self.controllers = {}
-        for name, joints in CONTROLLERS.items():
+        for name, joints in kin.profile.controller_joints.items():
             idx = np.array([kin.joint_index(j) for j in joints])
             follower = TrajectoryFollower(joints, kin.lower_limits[idx], kin.upper_limits[idx])
             follower.hold(self.q[idx])
             self.controllers[name] = (follower, idx)
-        self._wheel_idx = np.array([kin.joint_index(j) for j in WHEEL_JOINTS])
-        self._hand_fids = {s: kin.model.getFrameId(HAND_FRAMES[s]) for s in SIDES}
+        self._wheel_idx = np.array([kin.joint_index(j) for j in kin.profile.base.wheel_joints],
+                                   dtype=int)
+        self._hand_fids = {s: kin.model.getFrameId(f) for s, f in kin.profile.hand_frames.items()}
         self.wheel_radius, self.wheel_track = self._wheel_geometry()
         self.twist = (0.0, 0.0)    # applied (odometry) twist
         self._moving = False
@@ -108,9 +108,10 @@ class RulesWorld(CommandInputs):
     # -- geometry ---------------------------------------------------------------------
     def _wheel_geometry(self):
         model = self.kin.model
-        left = model.jointPlacements[model.getJointId(WHEEL_JOINTS[0])].translation
-        right = model.jointPlacements[model.getJointId(WHEEL_JOINTS[1])].translation
-        # base_link is on the floor under the axle: the axle height is the wheel radius.
+        left_joint, right_joint = self.kin.profile.base.wheel_joints
+        left = model.jointPlacements[model.getJointId(left_joint)].translation
+        right = model.jointPlacements[model.getJointId(right_joint)].translation
+        # The base frame is on the floor under the axle: the axle height is the wheel radius.
         return float(left[2]), float(abs(left[1] - right[1]))
 
     def _hand_positions(self):
@@ -125,7 +126,7 @@ class RulesWorld(CommandInputs):
         return out
 
     def camera_pose(self):
-        """World (odom) pose of camera_optical_frame from FK and the true base pose."""
+        """World (odom) pose of the camera optical frame from FK and the true base pose."""
         return base_to_world(self.world.robot_pose) @ self.kin.camera_pose(self.q)
 
     # -- commands ---------------------------------------------------------------------

@@ -78,8 +78,8 @@ from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_description import camera_intrinsics
-from abp_description.controllers import CONTROLLERS
 from abp_description.kinematics import RobotKinematics
+from abp_description.robot_profile import PROFILE_SPEC, load_profile, with_profile_defaults
 from abp_msgs.msg import SimGroundTruth
 
 from . import config as cfg
@@ -103,7 +103,7 @@ from .sim_timing import (
 )
 from .worlds import check_rendering, make_world
 
-ODOM_FRAME, BASE_FRAME = 'odom', 'base_link'
+ODOM_FRAME = 'odom'
 COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
@@ -128,16 +128,20 @@ class SimBridgeNode(ManagedNode):
         self._threads = []
 
     def configure(self):
+        # The robot profile first: it sets the defaults of the base command parameters.
+        profile = load_profile(declare_all(self, (PROFILE_SPEC,))['robot_profile'])
         try:
-            values = declare_all(self, cfg.PARAMETERS, note=cfg.description_note)
+            values = declare_all(self, with_profile_defaults(cfg.PARAMETERS[1:], profile),
+                                 note=cfg.description_note)
+            values['robot_profile'] = profile.path
         except rclpy.exceptions.InvalidParameterTypeException as error:
             raise ValueError(f'{error} (write a double with a decimal point, e.g. '
                              'speedup:=10.0, and integer arrays as [1,2,3])') from error
         self.config = cfg.build(values)
         if self.config.world == 'mujoco' and self.config.camera.rate > 0:
             check_rendering()  # no EGL: a configuration error with the fix, not a traceback
-        self.kin = RobotKinematics()
-        self.intrinsics = camera_intrinsics()
+        self.kin = RobotKinematics(profile=profile)
+        self.intrinsics = camera_intrinsics(profile.camera_calibration)
         self.lock = threading.Lock()
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)
@@ -149,14 +153,15 @@ class SimBridgeNode(ManagedNode):
         # The simulation is the clock the commands are stamped in: it is trusted.
         self._trajectory_stamps = {c: self.health.stamp_check(zero_is_now=True,
                                                               trust_clock=True)
-                                   for c in CONTROLLERS}
+                                   for c in profile.controller_joints}
         self._controller_actions = ControllerActions(
             self, self.config.values['stopped_velocity_tolerance'])
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._camera_info = sim_messages.camera_info(self.intrinsics)
         self._joint_msg = JointState(name=list(self.kin.joint_names))
         self._odom = Odometry()
-        self._odom.header.frame_id, self._odom.child_frame_id = ODOM_FRAME, BASE_FRAME
+        self._odom.header.frame_id = ODOM_FRAME
+        self._odom.child_frame_id = profile.frames.base
         self._clock_msg = Clock()
         h = self.config.hidden
         self.get_logger().info(
@@ -181,7 +186,7 @@ class SimBridgeNode(ManagedNode):
         values = self.config.values
         self.health.subscribe(base_command.message_type(values['base_command_type']),
                               values['base_command_topic'], self._on_cmd_vel, qos.RELIABLE)
-        for controller in CONTROLLERS:
+        for controller in self.kin.profile.controller_joints:
             self.health.subscribe(
                 JointTrajectory, names.trajectory_topic(controller),
                 lambda msg, c=controller: self._on_trajectory(c, msg), qos.RELIABLE)
@@ -272,7 +277,7 @@ class SimBridgeNode(ManagedNode):
 
     def _on_trajectory(self, controller, msg):
         """Raises input_checks.Rejected for a trajectory the controller refuses."""
-        check_trajectory(msg, CONTROLLERS[controller])
+        check_trajectory(msg, self.kin.profile.controller_joints[controller])
         stamps = self._trajectory_stamps[controller]
         now_ns = self._sim_now_ns()
         stamp_ns = stamps.check(msg.header.stamp, now_ns)

@@ -25,13 +25,10 @@ counterpart (a push pivots the way the contact makes it).
 
 import numpy as np
 
-from abp_description.controllers import SIDES
 from abp_description.kinematics import look_at_world
 
 from .flat_renderer import ArcubeRenderer
 from .rules_world import make_rules_world
-
-ARM_CONTROLLERS = tuple(f'{side}_arm_controller' for side in SIDES)
 
 
 def initial_positions(config, kin):
@@ -138,7 +135,8 @@ def mujoco_world_class():
 
         def set_trajectory(self, controller, joint_names, points, stamp_s=0.0):
             # Never while a contact episode is open: the hands would jump mid-grasp.
-            if controller in ARM_CONTROLLERS and self._episode is None and \
+            arms = {arm.controller for arm in self.kin.profile.arms.values()}
+            if controller in arms and self._episode is None and \
                     stamp_s != self._drawn_for_stamp:
                 self._drawn_for_stamp = stamp_s
                 self._draw_faults()

@@ -6,11 +6,12 @@ documents the motions.
 
 import numpy as np
 
-from abp_description.controllers import ARM_JOINTS, BODY_JOINTS, SIDES, TORSO_JOINT, other_side
 from abp_description.kinematics import look_at
+from abp_description.robot_profile import ORBIT_FIELDS
 
+from .base_motion import BaseLimits
 from .collision import SelfCollision
-from .ik import HandIK, mirror_arm
+from .ik import HandIK
 from .motion_profiles import (
     Limits,
     SampledTrajectory,
@@ -21,18 +22,23 @@ from .motion_profiles import (
 )
 from .plan_types import CubeFrame, Phase, PlanError, SkillConfig, SkillPlan
 
-__all__ = ['ArmPlanner', 'HOME_ARM', 'READY_ARM', 'READY_TORSO', 'REACH_ARM', 'REACH_TORSO']
+__all__ = ['ArmPlanner', 'default_config']
 
-# Folded arms (in front of the chest, clear of the wheels): left arm joint values;
-# the right arm mirrors them.
-HOME_ARM = (0.5, 0.2, 0.0, -2.0)
-# A forward reach towards the floor: a seed for the IK of the manual skills.
-REACH_ARM = (-1.2, 0.1, 0.0, -0.45)
-REACH_TORSO = 1.0
-# Arms raised forward and a little apart, torso half down: the via posture between home
-# and the postures near the cube (keeps the arms clear of the chassis and torso).
-READY_ARM = (-0.9, 0.25, 0.0, -1.0)
-READY_TORSO = 0.3
+# The postures (home, ready, reach) are the robot profile's (`RobotProfile.postures`): for
+# the uBot-6 folded arms in front of the chest, clear of the wheels (home); arms raised
+# forward and a little apart, torso half down, between home and the postures near the
+# cube, clear of the chassis and torso (ready); a forward reach towards the floor, the IK
+# seed of the manual skills (reach).
+READY_TORSO_MARGIN = 0.1   # rad: a torso bent further than ready's goes home via ready
+
+
+def default_config(profile):
+    """SkillConfig defaults for the robot of `profile`: its first push arm, its ORBIT radii
+    and base limits (the uBot-6's are SkillConfig's own defaults)."""
+    orbit, push = profile.base.orbit, profile.skill_arms('push')
+    return SkillConfig(push_hand=push[0] if push else SkillConfig.push_hand,
+                       orbit_min_radius=orbit.min_radius, orbit_max_radius=orbit.max_radius,
+                       base=BaseLimits(**{f: getattr(orbit, f) for f in ORBIT_FIELDS}))
 
 
 class ArmPlanner:
@@ -42,52 +48,68 @@ class ArmPlanner:
 
     def __init__(self, kin, config=None):
         self.kin = kin
-        self.config = (config or SkillConfig()).validate()
+        self.config = (config or default_config(kin.profile)).validate()
         self.ik = HandIK(kin, tol=self.config.ik_tolerance)
         self.collision = SelfCollision(kin, margin=self.config.collision_margin)
-        self._body_idx = np.array([kin.joint_index(n) for n in BODY_JOINTS])
+        # Joint names, arms and the torso come from the robot profile of the kinematics.
+        self.profile = kin.profile
+        self.sides = self.profile.sides
+        self.body_joints = self.profile.body_joints
+        torso = self.profile.torso
+        self._torso = kin.joint_index(torso.joint) if torso is not None else None
+        self._body_idx = np.array([kin.joint_index(n) for n in self.body_joints])
+        push_hands = self.profile.skill_arms('push')
+        if push_hands and self.config.push_hand not in push_hands:
+            raise ValueError(f'push_hand must be one of {", ".join(push_hands)} (the robot '
+                             f"profile's push arms), got {self.config.push_hand!r}")
         vel = kin.velocity_limits[self._body_idx] * self.config.joint_velocity_scale
         self.joint_limits = Limits(vel, self.config.joint_acceleration, self.config.joint_jerk)
 
     # -- postures ---------------------------------------------------------------------
-    def _set_arm(self, q, side, values):
-        values = values if side == 'left' else mirror_arm(values)
-        for name, v in zip(ARM_JOINTS[side], values):
+    def _set_arm(self, q, side, posture):
+        values = self.profile.postures[posture].arms[side]
+        for name, v in zip(self.profile.arms[side].joints, values):
             q[self.kin.joint_index(name)] = v
+        return q
+
+    def _set_posture(self, q, posture):
+        """The torso and every arm at the profile's `posture`."""
+        self._set_torso(q, self.profile.postures[posture].torso)
+        for side in self.sides:
+            self._set_arm(q, side, posture)
         return q
 
     def home(self, q=None, look=None):
         """Torso upright, arms folded, head looking at `look` (base_link) if given."""
         q = self.kin.neutral() if q is None else np.array(q, dtype=float)
-        q[self.kin.joint_index(TORSO_JOINT)] = 0.0
-        for side in SIDES:
-            self._set_arm(q, side, HOME_ARM)
+        self._set_posture(q, 'home')
         if look is not None:
             q, _ = look_at(self.kin, q, look)
         return self.kin.clip(q)
 
     def reach_seed(self, q):
-        q = np.array(q, dtype=float)
-        q[self.kin.joint_index(TORSO_JOINT)] = REACH_TORSO
-        for side in SIDES:
-            self._set_arm(q, side, REACH_ARM)
-        return q
+        return self._set_posture(np.array(q, dtype=float), 'reach')
 
     def ready(self, q, look=None):
-        q = np.array(q, dtype=float)
-        q[self.kin.joint_index(TORSO_JOINT)] = READY_TORSO
-        for side in SIDES:
-            self._set_arm(q, side, READY_ARM)
+        q = self._set_posture(np.array(q, dtype=float), 'ready')
         if look is not None:
             q, _ = look_at(self.kin, q, look)
         return self.kin.clip(q)
 
-    def _park_idle_arm(self, q, side):
-        """Keep the idle arm folded as at home, compensating the torso pitch."""
+    def _set_torso(self, q, value):
+        if self._torso is not None and value is not None:
+            q[self._torso] = value
+
+    def _torso_pitch(self, q):
+        return 0.0 if self._torso is None else q[self._torso]
+
+    def _park_idle_arm(self, q, sides):
+        """Keep the idle arms (`sides`) folded as at home, compensating the torso pitch."""
         q = q.copy()
-        self._set_arm(q, side, HOME_ARM)
-        i = self.kin.joint_index(ARM_JOINTS[side][0])
-        q[i] = HOME_ARM[0] - q[self.kin.joint_index(TORSO_JOINT)]
+        for side in sides:
+            self._set_arm(q, side, 'home')
+            i = self.kin.joint_index(self.profile.arms[side].joints[0])
+            q[i] = self.profile.postures['home'].arms[side][0] - self._torso_pitch(q)
         return self.kin.clip(q)
 
     # -- building blocks ----------------------------------------------------------------
@@ -108,7 +130,7 @@ class ArmPlanner:
 
     def _free_move(self, q_from, waypoints):
         try:
-            return joint_trajectory(BODY_JOINTS, self._body(q_from),
+            return joint_trajectory(self.body_joints, self._body(q_from),
                                     [self._body(w) for w in waypoints], self.joint_limits,
                                     self.config.sample_dt)
         except TrajectoryError as error:
@@ -124,7 +146,7 @@ class ArmPlanner:
         cum = np.concatenate([[0.0], np.cumsum(seg)])
         length = float(cum[-1])
         if length < 1e-6:
-            return SampledTrajectory.hold(BODY_JOINTS, self._body(q_from))
+            return SampledTrajectory.hold(self.body_joints, self._body(q_from))
         scale = 1.0
         for _ in range(4):
             profile = path_profile(length, cfg.cartesian_velocity * scale,
@@ -152,7 +174,7 @@ class ArmPlanner:
             if ratio <= 1.05:
                 acc = (np.gradient(vel, times, axis=0) if len(times) > 1
                        else np.zeros_like(pos))
-                return SampledTrajectory(BODY_JOINTS, times, pos, vel, acc)
+                return SampledTrajectory(self.body_joints, times, pos, vel, acc)
             scale /= ratio * 1.1
         raise PlanError(f'{what}: the hand path needs joint speeds above the limits')
 
@@ -183,7 +205,7 @@ class ArmPlanner:
     def _plan_push(self, q0, cube):
         cfg = self.config
         side = cfg.push_hand
-        idle = other_side(side)
+        idle = tuple(s for s in self.sides if s != side)
         h, r = cube.half, cfg.hand_radius
         contact = cube.point(h + r, 0.0, 0.0)
         pre = cube.point(h + r + cfg.approach_gap, 0.0, 0.0)
@@ -227,15 +249,16 @@ class ArmPlanner:
         result = self.ik.solve({s: pos[s] + [0.0, 0.0, dz] for s in sides}, q, q_rest=q)
         return result.q if result.success else q
 
-    def _grasp_points(self, cube, along_x, squeeze):
-        """Hand centres on the robot's left (-y_V) and right (+y_V) faces."""
+    def _grasp_points(self, cube, along_x, squeeze, pair):
+        """Hand centres on the robot's left (-y_V) and right (+y_V) faces, for the arms
+        `pair` (the profile's arms of a two-hand skill, the one on the left first)."""
         cfg = self.config
         w = cube.half + cfg.hand_radius - squeeze
-        return {'left': cube.point(along_x, -w, 0.0), 'right': cube.point(along_x, w, 0.0)}
+        return {pair[0]: cube.point(along_x, -w, 0.0), pair[1]: cube.point(along_x, w, 0.0)}
 
-    def _two_hand_approach(self, q0, cube, along_x, squeeze):
+    def _two_hand_approach(self, q0, cube, along_x, squeeze, pair):
         cfg = self.config
-        grasp = self._grasp_points(cube, along_x, squeeze)
+        grasp = self._grasp_points(cube, along_x, squeeze, pair)
         opened = self._opened(cube, grasp, squeeze)
         hover = {s: p + [0.0, 0.0, cfg.hover_height] for s, p in opened.items()}
         rest = self.reach_seed(q0)
@@ -245,7 +268,7 @@ class ArmPlanner:
         q_open, _ = look_at(self.kin, q_open, cube.centre)
         approach = Phase('approach', self._free_move(
             q0, [self.ready(q0, cube.centre), q_hover, q_open]))
-        close = self._path_move(q_open, {s: np.array([opened[s], grasp[s]]) for s in SIDES},
+        close = self._path_move(q_open, {s: np.array([opened[s], grasp[s]]) for s in pair},
                                 'grasp')
         q_grasp = self._full(close.end, q_open)
         return (approach, Phase('contact', close, pressing=squeeze > 0), q_grasp, grasp,
@@ -268,22 +291,22 @@ class ArmPlanner:
         """Open the hands sideways from `held` ({side: xyz}), lift them, go home."""
         cfg = self.config
         opened = self._opened(cube, held, squeeze)
-        open_t = self._path_move(q_from, {s: np.array([held[s], opened[s]]) for s in SIDES},
+        open_t = self._path_move(q_from, {s: np.array([held[s], opened[s]]) for s in held},
                                  what)
         q_open = self._full(open_t.end, q_from)
-        q_up = self._lifted(q_open, SIDES, cfg.hover_height)
+        q_up = self._lifted(q_open, tuple(held), cfg.hover_height)
         home = self._free_move(q_open, [q_up, self.ready(q0, look), self.home(q0, look=look)])
         return Phase('retreat', SampledTrajectory.concat([open_t, home]))
 
     def _plan_lift(self, q0, cube):
         cfg = self.config
         approach, contact, q_grasp, grasp, _, _ = self._two_hand_approach(
-            q0, cube, 0.0, cfg.grasp_squeeze)
+            q0, cube, 0.0, cfg.grasp_squeeze, self.profile.skill_arms('lift'))
         up = {s: p + [0.0, 0.0, cfg.lift_height] for s, p in grasp.items()}
-        raise_t = self._path_move(q_grasp, {s: np.array([grasp[s], up[s]]) for s in SIDES},
+        raise_t = self._path_move(q_grasp, {s: np.array([grasp[s], up[s]]) for s in grasp},
                                   'lift')
         q_up = self._full(raise_t.end, q_grasp)
-        lower_t = self._path_move(q_up, {s: np.array([up[s], grasp[s]]) for s in SIDES},
+        lower_t = self._path_move(q_up, {s: np.array([up[s], grasp[s]]) for s in grasp},
                                   'place')
         q_down = self._full(lower_t.end, q_grasp)
         stroke = Phase('stroke', SampledTrajectory.concat([raise_t, lower_t]),
@@ -293,7 +316,7 @@ class ArmPlanner:
         obstacles = [cube.box()]
         self._check(approach, q0, obstacles)
         self._check(contact, q0, [self._grasp_obstacle(cube, cfg.grasp_squeeze)],
-                    touching=SIDES)
+                    touching=tuple(grasp))
         self._check(stroke, q0)
         self._check(retreat, q0)
         return SkillPlan('lift', True, '', phases,
@@ -302,7 +325,7 @@ class ArmPlanner:
     def _plan_flip(self, q0, cube):
         cfg = self.config
         approach, contact, q_grasp, grasp, _, _ = self._two_hand_approach(
-            q0, cube, cfg.flip_grasp_offset, cfg.flip_squeeze)
+            q0, cube, cfg.flip_grasp_offset, cfg.flip_squeeze, self.profile.skill_arms('flip'))
         roll = np.radians(cfg.flip_roll_deg)
         phi = np.linspace(0.0, roll, 19)
         frac_up = np.sin(phi) / max(np.sin(min(roll, np.pi / 2)), 1e-9)
@@ -310,17 +333,17 @@ class ArmPlanner:
         roll_paths = {s: np.array([grasp[s] + cfg.flip_up * fu * np.array([0, 0, 1.0])
                                    + cfg.flip_back * fb * cube.x
                                    for fu, fb in zip(frac_up, frac_back)])
-                      for s in SIDES}
+                      for s in grasp}
         roll_t = self._path_move(q_grasp, roll_paths, 'roll')
         q_rolled = self._full(roll_t.end, q_grasp)
-        rolled = {s: roll_paths[s][-1] for s in SIDES}
+        rolled = {s: roll_paths[s][-1] for s in grasp}
         # Put it down straight below where the roll left it. Carrying it forward again as
         # it lands pushes the top of a rolled cube on past its quarter turn (towards a
         # half turn) and tips over a cube held without turning (wedged between the hands
         # at an odd yaw); lowered vertically, each lands on the face it hangs on.
         placed = {s: p + cfg.flip_back * cube.x for s, p in grasp.items()}
         place_t = self._path_move(q_rolled, {s: np.array([rolled[s], placed[s]])
-                                             for s in SIDES}, 'put down')
+                                             for s in grasp}, 'put down')
         q_placed = self._full(place_t.end, q_grasp)
         stroke = Phase('stroke', SampledTrajectory.concat([roll_t, place_t]),
                        pressing=cfg.flip_squeeze > 0)
@@ -329,7 +352,7 @@ class ArmPlanner:
         obstacles = [cube.box()]
         self._check(approach, q0, obstacles)
         self._check(contact, q0, [self._grasp_obstacle(cube, cfg.flip_squeeze)],
-                    touching=SIDES)
+                    touching=tuple(grasp))
         self._check(stroke, q0)
         self._check(retreat, q0)
         return SkillPlan('flip', True, '', phases,
@@ -340,11 +363,13 @@ class ArmPlanner:
         or the arms are far from home); None when already there."""
         q = np.asarray(q, dtype=float)
         q_home = self.home(q, look=look)
-        arms = np.array([self.kin.joint_index(n) for n in
-                         (TORSO_JOINT, *ARM_JOINTS['left'], *ARM_JOINTS['right'])])
+        torso = () if self._torso is None else (self._torso,)
+        arms = np.array([*torso, *(self.kin.joint_index(n) for s in self.sides
+                                   for n in self.profile.arms[s].joints)])
         if np.max(np.abs(q[arms] - q_home[arms])) <= tolerance:
             return None
         via = []
-        if q[self.kin.joint_index(TORSO_JOINT)] > READY_TORSO + 0.1:
+        ready_torso = self.profile.postures['ready'].torso or 0.0
+        if self._torso_pitch(q) > ready_torso + READY_TORSO_MARGIN:
             via.append(self.ready(q, look))
         return self._free_move(q, [*via, q_home])

@@ -1,20 +1,20 @@
 """Arm self-collision and clearance checks on simple shapes (plain NumPy, no rclpy).
 
 The arms are capsules (upper arm shoulder->elbow, forearm elbow->hand) and the hands are
-balls, with the URDF's radii; the chassis, torso and head are oriented boxes, the wheels
-cylinders. Checked pairs: hand-hand, left arm vs right arm
-(which also catches crossed forearms), each forearm and hand against the torso, chassis,
-head and wheels, each upper arm against the chassis, head and wheels, everything against
-the floor, and optionally arm parts against obstacle boxes (the cube). `check` returns
-(ok, reason) with the first violation, worded for a refusal.
+balls; the body is oriented boxes and cylinders. Radii, shapes and the links they hang on
+come from the robot profile's `collision` and `arms` (the uBot-6: chassis, torso and head
+boxes, wheel cylinders). Checked pairs: hand-hand and arm vs arm for every two arms
+(which also catches crossed forearms), each forearm and hand against every body shape,
+each upper arm against the shapes it is not attached to (the profile's shoulder_bodies),
+everything against the floor, and optionally arm parts against obstacle boxes (the cube).
+`check` returns (ok, reason) with the first violation, worded for a refusal.
 """
 
 from dataclasses import dataclass
+from itertools import combinations
 
 import numpy as np
 import pinocchio as pin
-
-from abp_description.controllers import SIDES
 
 UPPER, FOREARM, HAND = 0, 1, 2
 PART_NAMES = ('upper arm', 'forearm', 'hand')
@@ -89,21 +89,24 @@ def segment_distance(p1, q1, p2, q2):
 
 
 class SelfCollision:
-    """Clearance checks of the two arms against each other, the body and the floor."""
-
-    # URDF collision radii (m).
-    UPPER_ARM_RADIUS = 0.03
-    FOREARM_RADIUS = 0.025
-    HAND_RADIUS = 0.035
+    """Clearance checks of the arms against each other, the body and the floor."""
 
     def __init__(self, kin, margin=0.01, floor_margin=0.0):
         self.kin = kin
         self.margin = float(margin)
         self.floor_margin = float(floor_margin)
-        names = []
-        for s in SIDES:
-            names += [f'{s}_upper_arm_link', f'{s}_forearm_link', f'{s}_hand_link']
-        names += ['base_link', 'torso_link', 'head_link']
+        profile = kin.profile
+        geometry = profile.collision
+        self.sides = profile.sides
+        self.UPPER_ARM_RADIUS = geometry.upper_arm_radius
+        self.FOREARM_RADIUS = geometry.forearm_radius
+        self.HAND_RADIUS = geometry.hand_radius
+        self._bodies = geometry.bodies
+        self._shoulder_bodies = set(geometry.shoulder_bodies)
+        self._arm_frames = {s: (a.upper_arm_link, a.forearm_link, a.hand_frame)
+                            for s, a in profile.arms.items()}
+        names = [n for s in self.sides for n in self._arm_frames[s]]
+        names += [b.frame for b in self._bodies if b.frame not in names]
         self._frames = names
         self._fids = [kin.model.getFrameId(n) for n in names]
         nu, nf = len(self._UPPER_FRAC), len(self._FORE_FRAC)
@@ -115,28 +118,23 @@ class SelfCollision:
         self._pair_radii = np.where(both_upper, -np.inf, pair)  # shoulders 30 cm apart
 
     def shapes(self, q):
-        """Capsules/balls of the arms ({side: dict}) and the body boxes at joint positions q."""
+        """Capsules/balls of the arms ({side: dict}) and the body shapes at joint positions q."""
         model, data = self.kin.model, self.kin.data
         pin.framesForwardKinematics(model, data, self.kin.to_pinocchio(q))
         pose = {n: data.oMf[f].homogeneous for n, f in zip(self._frames, self._fids)}
         arms = {}
-        for s in SIDES:
-            shoulder = pose[f'{s}_upper_arm_link'][:3, 3].copy()
-            elbow = pose[f'{s}_forearm_link'][:3, 3].copy()
-            hand = pose[f'{s}_hand_link'][:3, 3].copy()
-            arms[s] = {'shoulder': shoulder, 'elbow': elbow, 'hand': hand}
-        boxes = [
-            box_from(pose['base_link'], (0, 0, 0.16), (0.07, 0.13, 0.12), 'chassis'),
-            box_from(pose['torso_link'], (0, 0, 0.16), (0.055, 0.12, 0.16), 'torso'),
-            box_from(pose['head_link'], (0.02, 0, 0.04), (0.06, 0.08, 0.05), 'head'),
-            cylinder_from(pose['base_link'], (0, 0.17, 0.1), 0.1, 0.02, 'left wheel'),
-            cylinder_from(pose['base_link'], (0, -0.17, 0.1), 0.1, 0.02, 'right wheel'),
-        ]
+        for s in self.sides:
+            upper, fore, hand = self._arm_frames[s]
+            arms[s] = {'shoulder': pose[upper][:3, 3].copy(),
+                       'elbow': pose[fore][:3, 3].copy(), 'hand': pose[hand][:3, 3].copy()}
+        boxes = [box_from(pose[b.frame], b.offset, b.box, b.name) if b.box is not None else
+                 cylinder_from(pose[b.frame], b.offset, b.radius, b.half_length, b.name)
+                 for b in self._bodies]
         return arms, boxes
 
     def hand_positions(self, q):
         arms, _ = self.shapes(q)
-        return {s: arms[s]['hand'] for s in SIDES}
+        return {s: arms[s]['hand'] for s in self.sides}
 
     # Sample fractions along the upper arm (0.22 m) and the forearm (0.23 m), 1.5 cm apart:
     # the upper arm without its shoulder end, the forearm without its last 3 cm (the hand
@@ -151,37 +149,38 @@ class SelfCollision:
         fore = e + self._FORE_FRAC[:, None] * (h - e)
         return np.vstack([upper, fore, h[None, :]]), self._radii, self._parts
 
-    def check(self, q, obstacles=(), touching=(), sides=SIDES):
+    def check(self, q, obstacles=(), touching=(), sides=None):
         """(ok, reason) for joint positions q.
 
         `obstacles`: shapes (e.g. the cube's Box) that no arm part may enter; the hands in
         `touching` may touch them (a grasp or a push contact), but not their forearms.
-        `sides`: the arms to check against the body and obstacles (both by default)."""
+        `sides`: the arms to check against the body and obstacles (all by default)."""
         arms, shapes = self.shapes(q)
         m = self.margin
         rh = self.HAND_RADIUS
-        d = float(np.linalg.norm(arms['left']['hand'] - arms['right']['hand']))
-        if d < 2 * rh + m:
-            return False, f'self-collision: hands {100 * d:.1f} cm apart'
-        points = {s: self._arm_points(arms[s]) for s in SIDES}
-        (lp, _, lparts), (rp, _, rparts) = points['left'], points['right']
-        gap = np.linalg.norm(lp[:, None, :] - rp[None, :, :], axis=-1) - self._pair_radii
-        i, j = np.unravel_index(int(np.argmin(gap)), gap.shape)
-        if gap[i, j] < m:
-            if lparts[i] == FOREARM and rparts[j] == FOREARM:
-                what = 'forearms cross'
-            else:
-                what = (f'left {PART_NAMES[lparts[i]]} touches the right '
-                        f'{PART_NAMES[rparts[j]]}')
-            return False, f'self-collision: {what} ({100 * gap[i, j]:.1f} cm)'
-        checked = [s for s in SIDES if s in sides]
+        points = {s: self._arm_points(arms[s]) for s in self.sides}
+        for a, b in combinations(self.sides, 2):
+            d = float(np.linalg.norm(arms[a]['hand'] - arms[b]['hand']))
+            if d < 2 * rh + m:
+                return False, f'self-collision: hands {100 * d:.1f} cm apart'
+            (ap, _, aparts), (bp, _, bparts) = points[a], points[b]
+            gap = np.linalg.norm(ap[:, None, :] - bp[None, :, :], axis=-1) - self._pair_radii
+            i, j = np.unravel_index(int(np.argmin(gap)), gap.shape)
+            if gap[i, j] < m:
+                if aparts[i] == FOREARM and bparts[j] == FOREARM:
+                    what = 'forearms cross'
+                else:
+                    what = (f'{a} {PART_NAMES[aparts[i]]} touches the {b} '
+                            f'{PART_NAMES[bparts[j]]}')
+                return False, f'self-collision: {what} ({100 * gap[i, j]:.1f} cm)'
+        checked = [s for s in self.sides if sides is None or s in sides]
         pts = np.vstack([points[s][0] for s in checked])
         radii = np.concatenate([self._radii for _ in checked])
         parts = np.concatenate([self._parts for _ in checked])
         owner = np.repeat(np.arange(len(checked)), len(self._radii))
         for shape in shapes:
             clearance = shape.distance(pts) - radii
-            if shape.name == 'torso':
+            if shape.name in self._shoulder_bodies:
                 clearance[parts == UPPER] = np.inf  # attached at the shoulder
             k = int(np.argmin(clearance))
             if clearance[k] < m:

@@ -16,14 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from abp_description.controllers import ARM_JOINTS, SIDES, TORSO_JOINT
-from abp_description.kinematics import HAND_FRAMES, RobotKinematics
-
-
-def mirror_arm(values_left):
-    """Right-arm joint values mirroring left-arm ones (roll and yaw change sign)."""
-    pitch, roll, yaw, elbow = values_left
-    return (pitch, -roll, -yaw, elbow)
+from abp_description.kinematics import RobotKinematics
 
 
 @dataclass
@@ -54,7 +47,9 @@ class HandIK:
         self.limit_margin = float(limit_margin)
         self.posture_gain = float(posture_gain)
         model = self.kin.model
-        self._fid = {s: model.getFrameId(HAND_FRAMES[s]) for s in SIDES}
+        self.profile = self.kin.profile   # the arms, hand frames and torso joint
+        self.sides = self.profile.sides
+        self._fid = {s: model.getFrameId(f) for s, f in self.profile.hand_frames.items()}
         self._idx_v = np.array([model.joints[model.getJointId(n)].idx_v
                                 for n in self.kin.joint_names])
         lo, hi = self.kin.lower_limits.copy(), self.kin.upper_limits.copy()
@@ -84,9 +79,10 @@ class HandIK:
         return pos, jac
 
     def active_joints(self, sides, use_torso=True):
-        names = [TORSO_JOINT] if use_torso else []
+        torso = self.profile.torso
+        names = [torso.joint] if use_torso and torso is not None else []
         for s in sides:
-            names.extend(ARM_JOINTS[s])
+            names.extend(self.profile.arms[s].joints)
         return tuple(names)
 
     def solve(self, targets, q_seed, use_torso=True, q_rest=None, seeds=(), tol=None):
@@ -99,11 +95,11 @@ class HandIK:
         if not targets:
             raise ValueError('no IK targets')
         for side in targets:
-            if side not in SIDES:
-                raise ValueError(f'unknown hand {side!r}; expected one of {SIDES}')
+            if side not in self.sides:
+                raise ValueError(f'unknown hand {side!r}; expected one of {self.sides}')
         tol = self.tol if tol is None else float(tol)
         q_seed = np.asarray(q_seed, dtype=float)
-        sides = tuple(s for s in SIDES if s in targets)
+        sides = tuple(s for s in self.sides if s in targets)
         target = {s: np.asarray(targets[s], dtype=float).reshape(3) for s in sides}
         active = self.index(self.active_joints(sides, use_torso))
         rest = q_seed if q_rest is None else np.asarray(q_rest, dtype=float)

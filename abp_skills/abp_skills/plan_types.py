@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from abp_belief.cube import ACTIONS, ORBIT_STEPS
-from abp_description.controllers import SIDES
 
 from .base_motion import BaseLimits
 from .collision import Box
@@ -43,7 +42,7 @@ class SkillConfig:
     flip_squeeze: float = 0.0          # m, FLIP: a light grip (see the module doc)
     approach_gap: float = 0.05         # m, free space between a hand and a face before contact
     hover_height: float = 0.08         # m, via point above the pre-contact posture
-    push_hand: str = 'right'
+    push_hand: str = 'right'          # an arm of the robot profile's push skill
     push_stroke: float = 0.05          # m, hand travel beyond first contact
     lift_height: float = 0.08          # m
     flip_grasp_offset: float = 0.03    # m, contacts this far from the face centres to the robot
@@ -85,8 +84,8 @@ class SkillConfig:
                 raise ValueError(f'{name} must be > 0, got {getattr(self, name)}')
         if int(self.check_stride) < 1 or int(self.feasibility_check_stride) < 1:
             raise ValueError('check_stride and feasibility_check_stride must be >= 1')
-        if self.push_hand not in SIDES:
-            raise ValueError(f"push_hand must be 'left' or 'right', got {self.push_hand!r}")
+        if not isinstance(self.push_hand, str) or not self.push_hand:
+            raise ValueError(f'push_hand must name an arm, got {self.push_hand!r}')
         for name in ('grasp_squeeze', 'flip_squeeze'):
             if not 0 <= getattr(self, name) < self.hand_radius:
                 raise ValueError(f'{name} must be in [0, hand_radius)')

@@ -40,7 +40,7 @@ import numpy as np
 
 from abp_description.frames import se2_compose
 
-from .arm_plans import HOME_ARM, REACH_ARM, REACH_TORSO, READY_ARM, READY_TORSO, ArmPlanner
+from .arm_plans import ArmPlanner
 from .base_motion import plan_orbit
 from .plan_types import (
     ACTIONS,
@@ -59,8 +59,7 @@ from .plan_types import (
 
 __all__ = ['ACTIONS', 'APPROACH_BEARING_TOLERANCE', 'CubeFrame', 'MANUAL_SKILLS', 'ORBIT_ACTIONS',
            'ORBIT_ANGLES_DEG', 'PHASES', 'Phase', 'PlanError', 'SkillConfig', 'SkillPlan',
-           'SkillPlanner', 'YAW_STEP_DEG', 'HOME_ARM', 'READY_ARM', 'READY_TORSO', 'REACH_ARM',
-           'REACH_TORSO']
+           'SkillPlanner', 'YAW_STEP_DEG']
 
 
 class SkillPlanner(ArmPlanner):
@@ -72,12 +71,19 @@ class SkillPlanner(ArmPlanner):
         return SkillPlanner(self.kin, replace(self.config, **changes))
 
     # -- the manual skills (ArmPlanner._plan_<skill>) ------------------------------------
+    def lacks(self, skill):
+        """The refusal of a skill the robot profile does not list."""
+        return (f'the robot ({self.profile.name}) has no {skill.upper()} skill '
+                '(not in its robot profile)')
+
     def plan(self, skill, q_current, cube_centre, **overrides):
         """SkillPlan for 'push', 'lift' or 'flip' from joints `q_current` (13) with the cube
         centre at `cube_centre` (base_link). Overrides: push_stroke, lift_height,
         flip_roll_deg (goal fields)."""
         if skill not in MANUAL_SKILLS:
             raise ValueError(f'unknown manual skill {skill!r}')
+        if not self.profile.has_skill(skill):
+            return SkillPlan(skill, False, self.lacks(skill))
         planner = self.with_config(**{k: v for k, v in overrides.items() if v})
         try:
             cube = planner.cube_frame(cube_centre)
@@ -98,6 +104,8 @@ class SkillPlanner(ArmPlanner):
     def orbit_feasibility(self, angle_deg, cube_centre, requested_radius=0.0):
         """(ok, reason, radius) for ORBIT(angle_deg) with the cube at `cube_centre`."""
         cfg = self.config
+        if not self.profile.has_skill('orbit'):
+            return False, self.lacks('orbit'), 0.0
         if not any(abs(angle_deg - a) < 1e-6 for a in ORBIT_ANGLES_DEG):
             return False, (f'orbit angle {angle_deg:g} deg is not one of '
                            f'{", ".join(f"{a:g}" for a in ORBIT_ANGLES_DEG)}'), 0.0
@@ -149,6 +157,8 @@ class SkillPlanner(ArmPlanner):
             ok, reason, _ = self.orbit_feasibility(ORBIT_ACTIONS[action], cube_centre)
             return ok, reason
         if action in ('PUSH', 'LIFT', 'FLIP'):
+            if not self.profile.has_skill(action.lower()):
+                return False, self.lacks(action.lower())
             _, ok, reason, cube_after = self.base_approach(cube_centre)
             if not ok:
                 return False, reason

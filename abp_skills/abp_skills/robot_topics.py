@@ -1,14 +1,14 @@
 """ROS wiring of the robot's topics for the skills: sensors in, commands out.
 
 `RobotInputs` subscribes /joint_states, /odom and /abp/aspect_observation (the cube pose
-estimate: hypotheses[0].object_pose, in base_link or any URDF frame) and feeds the node's
+estimate: hypotheses[0].object_pose, in the base frame or any URDF frame) and feeds the node's
 `RobotState`; malformed messages (abp_common.input_checks: non-finite values, sizes that
 disagree, frames not in the URDF, stamps from the past or the future) are rejected and
 counted in the node's /diagnostics (`SkillsContext.health`, abp_common.health). `RobotCommands`
-commands the base (TwistStamped or Twist) and every controller of
-`abp_description.controllers.CONTROLLERS` (FollowJointTrajectory goals on
-<controller>/follow_joint_trajectory, or JointTrajectory on <controller>/joint_trajectory),
-as Jazzy's ros2_control controllers take them. Names are relative (abp_common.names).
+commands the base (TwistStamped or Twist) and every controller of the robot profile
+(FollowJointTrajectory goals on <controller>/follow_joint_trajectory, or JointTrajectory
+on <controller>/joint_trajectory, the only way for a controller whose profile interface is
+`topic`), as Jazzy's ros2_control controllers take them. Names are relative (abp_common.names).
 """
 
 import queue
@@ -31,14 +31,12 @@ from abp_common import base_command, input_checks, names
 from abp_common.input_checks import Rejected
 from abp_common.qos import RELIABLE
 from abp_common.server_handshake import ask_action_server
-from abp_description.controllers import CONTROLLERS
 from abp_description.frames import yaw_of_quaternion
 from abp_description.kinematics import look_at
 from abp_msgs.msg import AspectObservation
 
 from .skill_checks import Refused
 
-HEAD_CONTROLLER = 'head_controller'
 HEAD_MOVE_S = 0.2   # time_from_start of a head aiming point
 FOLLOW_JOINT_TRAJECTORY = '{controller}/follow_joint_trajectory'
 HANDSHAKE_TIMEOUT_S = 2.0
@@ -93,7 +91,7 @@ class RobotInputs:
         pose = msg.hypotheses[0].object_pose.pose
         point = np.array([pose.position.x, pose.position.y, pose.position.z])
         frame = msg.header.frame_id.lstrip('/')
-        if frame not in ('', 'base_link'):
+        if frame not in ('', self.ctx.kin.profile.frames.base):
             ctx = self.ctx
             if not ctx.kin.has_frame(frame):
                 raise Rejected('frame', f'cube estimate in frame {frame[:40]!r}, which is not '
@@ -101,7 +99,8 @@ class RobotInputs:
             q = ctx.state.latest_joints()
             if q is None:
                 raise Rejected('no_joint_states', f'cube estimate in frame {frame!r} cannot '
-                                                  'be put in base_link before /joint_states')
+                                                  'be put in the base frame before '
+                                                  '/joint_states')
             with ctx.fk_lock:
                 tf = ctx.kin.frame_pose(q, frame)
             point = tf[:3, :3] @ point + tf[:3, 3]
@@ -130,17 +129,20 @@ class RobotCommands:
         self._base_topic = context.param('base_command_topic')
         self._cmd_pub = node.create_publisher(base_command.message_type(self._base_kind),
                                               self._base_topic, RELIABLE)
+        profile = context.kin.profile
+        self._controllers = profile.controller_joints   # name -> joints, message order
+        self._head = profile.head.controller
         self._traj_pubs = {
             name: node.create_publisher(JointTrajectory, names.trajectory_topic(name), RELIABLE)
-            for name in CONTROLLERS
+            for name in self._controllers
         }
         self._interface = context.param('trajectory_interface')
         self._calls = None if self._interface == 'topic' else ClientCalls(node)
         self._clients = {} if self._interface == 'topic' else {
-            name: ActionClient(node, FollowJointTrajectory,
-                               FOLLOW_JOINT_TRAJECTORY.format(controller=name),
-                               callback_group=self._calls.group)
-            for name in CONTROLLERS}
+            c.name: ActionClient(node, FollowJointTrajectory,
+                                 FOLLOW_JOINT_TRAJECTORY.format(controller=c.name),
+                                 callback_group=self._calls.group)
+            for c in profile.controllers if c.interface == 'action'}
         self._answering = set()     # controllers whose action server answered a handshake
         self._goals = {}            # controller -> _Goal of the last trajectory sent by action
 
@@ -150,7 +152,8 @@ class RobotCommands:
     # -- the base ----------------------------------------------------------------------
     def _publish_base(self, v, w):
         self._cmd_pub.publish(base_command.command(
-            self._base_kind, v, w, self.ctx.ros.get_clock().now().to_msg()))
+            self._base_kind, v, w, self.ctx.ros.get_clock().now().to_msg(),
+            self.ctx.kin.profile.frames.base))
 
     def velocity(self, v, w):
         """Drive the base at v (m/s), ω (rad/s)."""
@@ -188,7 +191,7 @@ class RobotCommands:
         q = self.ctx.state.latest_joints()
         if q is None:       # no joint state ever: nothing to hold at (and nothing moved)
             return
-        for name, joints in CONTROLLERS.items():
+        for name, joints in self._controllers.items():
             if name in cancelled:
                 continue
             idx = [self.ctx.kin.joint_index(j) for j in joints]
@@ -211,7 +214,7 @@ class RobotCommands:
         start = now.nanoseconds * 1e-9 + start_delay_s
         stamp = (now + RclpyDuration(seconds=start_delay_s)).to_msg() if start_delay_s > 0 \
             else None
-        for name, joints in CONTROLLERS.items():
+        for name, joints in self._controllers.items():
             part = trajectory.select(joints)
             msg = JointTrajectory(joint_names=list(joints))
             if stamp is not None:
@@ -230,14 +233,14 @@ class RobotCommands:
         ctx = self.ctx
         with ctx.fk_lock:
             q_look, _ = look_at(ctx.kin, q, cube_base)
-        joints = CONTROLLERS[HEAD_CONTROLLER]
+        joints = self._controllers[self._head]
         idx = [ctx.kin.joint_index(n) for n in joints]
         msg = JointTrajectory(joint_names=list(joints))
         msg.points.append(JointTrajectoryPoint(
             positions=q_look[idx].tolist(), velocities=[0.0] * len(idx),
             time_from_start=duration_msg(HEAD_MOVE_S)))
-        self._traj_pubs[HEAD_CONTROLLER].publish(msg)
-        self._goals.pop(HEAD_CONTROLLER, None)
+        self._traj_pubs[self._head].publish(msg)
+        self._goals.pop(self._head, None)
 
     def trajectory_outcome(self):
         """The controllers' verdict on the last trajectory sent by action: None while any
@@ -252,11 +255,11 @@ class RobotCommands:
     @property
     def by_action(self):
         """Whether the last trajectory went to every controller by action."""
-        return len(self._goals) == len(CONTROLLERS)
+        return len(self._goals) == len(self._controllers)
 
     def _uses_action(self, name):
-        if self._interface == 'topic':
-            return False
+        if self._interface == 'topic' or name not in self._clients:
+            return False   # topic only (parameter, or the controller's profile interface)
         client = self._clients[name]
         if name not in self._answering:
             action = self.ctx.ros.resolve_topic_name(

@@ -1,17 +1,19 @@
 """The skill servers' parameters as one plain table (no rclpy), and the SkillConfig they build.
 
-`skills_parameter_specs(feasibility)` is what `skills_node` declares with
-`abp_common.parameters.declare_all`: `feasibility_service` (read-only: a change needs a
-restart), the node's own timing parameters (`NODE_SPECS`), every `SkillConfig` field but
-`base` under its own name and every `BaseLimits` field as `base_<field>`
-(`CONFIG_SPECS`). `config_from_values` turns the values back into a checked SkillConfig.
+`skills_parameter_specs(feasibility, profile)` is what `skills_node` declares with
+`abp_common.parameters.declare_all`: `robot_profile`, `feasibility_service` (read-only: a
+change needs a restart), the node's own timing parameters (`NODE_SPECS`), every
+`SkillConfig` field but `base` under its own name and every `BaseLimits` field as
+`base_<field>` (`CONFIG_SPECS`). The robot profile gives the robot's defaults: base
+command type and topic, ORBIT radii and base limits, the push hands. `config_from_values`
+turns the values back into a checked SkillConfig.
 """
 
-from dataclasses import fields
+from dataclasses import fields, replace
 
 from abp_common import base_command, names
 from abp_common.param_spec import BOOL, DOUBLE, INT, STRING, ParamSpec
-from abp_description.controllers import SIDES
+from abp_description.robot_profile import ORBIT_FIELDS, PROFILE_SPEC, load_profile
 
 from .base_motion import BaseLimits
 from .plans import SkillConfig
@@ -69,7 +71,7 @@ NODE_SPECS = (
 # Descriptions of the SkillConfig fields exposed as parameters.
 CONFIG_DESCRIPTIONS = {
     'cube_size': 'm, ARcube edge.',
-    'support_height': 'm, height of the surface the cube rests on, in base_link.',
+    'support_height': 'm, height of the surface the cube rests on, in the base frame.',
     'use_estimated_height': 'Take the cube centre height from the estimate (else '
                             'support_height + cube_size / 2).',
     'hand_radius': "m, radius of the hands' contact balls (sim bridge: 0.03).",
@@ -77,7 +79,7 @@ CONFIG_DESCRIPTIONS = {
     'flip_squeeze': "m, how far FLIP's grasp presses into the faces.",
     'approach_gap': 'm, free space between hand and face before contact and after release.',
     'hover_height': 'm, via point above the pre-contact posture.',
-    'push_hand': 'Hand that pushes: left or right.',
+    'push_hand': "Hand that pushes: one of the robot profile's push arms.",
     'push_stroke': 'm, hand travel beyond first contact (the sim slides the cube after 2 cm).',
     'lift_height': 'm, default lift height.',
     'flip_grasp_offset': 'm, FLIP contacts this far from the face centres towards the robot.',
@@ -122,8 +124,7 @@ def _config_spec(name, default):
     if isinstance(default, int):
         return ParamSpec(name, INT, default, description)
     if isinstance(default, str):
-        return ParamSpec(name, STRING, default, description,
-                         choices=SIDES if name == 'push_hand' else ())
+        return ParamSpec(name, STRING, default, description)
     bounds = SUPPORT_HEIGHT_RANGE if name == 'support_height' else CONFIG_RANGE
     return ParamSpec(name, DOUBLE, float(default), description, bounds)
 
@@ -140,16 +141,43 @@ def _config_specs():
 CONFIG_SPECS = _config_specs()
 
 
-def skills_parameter_specs(feasibility=True):
-    """Every parameter of a skills node; `feasibility`: the default of feasibility_service."""
+def _profile_defaults(profile):
+    """{parameter: default} that the robot profile sets."""
+    orbit, push = profile.base.orbit, profile.skill_arms('push')
+    out = {'base_command_type': profile.base.command_type,   # as with_profile_defaults
+           'base_command_topic': profile.base.command_topic,
+           'orbit_min_radius': orbit.min_radius, 'orbit_max_radius': orbit.max_radius,
+           **{f'base_{name}': getattr(orbit, name) for name in ORBIT_FIELDS}}
+    if push:
+        out['push_hand'] = push[0]
+    return out
+
+
+def skills_parameter_specs(feasibility=True, profile=None):
+    """Every parameter of a skills node; `feasibility`: the default of feasibility_service;
+    `profile` (a RobotProfile, default: the uBot-6's) the robot's defaults and push hands."""
+    profile = profile if profile is not None else load_profile()
     host = ParamSpec('feasibility_service', BOOL, bool(feasibility),
                      f'Host /{names.CHECK_FEASIBILITY} in this process.', read_only=True)
-    return (host, *NODE_SPECS, *CONFIG_SPECS)
+    robot = _profile_defaults(profile)
+    push_hands = profile.skill_arms('push')
+
+    def for_robot(spec):
+        if spec.name == 'push_hand':
+            spec = replace(spec, choices=push_hands or (spec.default,))
+        return replace(spec, default=robot[spec.name]) if spec.name in robot else spec
+
+    return (PROFILE_SPEC, host, *(for_robot(s) for s in (*NODE_SPECS, *CONFIG_SPECS)))
 
 
-def config_from_values(values):
-    """The validated SkillConfig of parameter values ({name: value}, CONFIG_SPECS names);
-    raises ValueError naming the parameter that is wrong."""
+def config_from_values(values, profile=None):
+    """The validated SkillConfig of parameter values ({name: value}, CONFIG_SPECS names)
+    for the robot of `profile` (default: the uBot-6's); raises ValueError naming the
+    parameter that is wrong."""
+    push_hands = (profile if profile is not None else load_profile()).skill_arms('push')
+    if push_hands and values['push_hand'] not in push_hands:
+        raise ValueError(f'push_hand must be one of {", ".join(push_hands)} (the robot '
+                         f"profile's push arms), got {values['push_hand']!r}")
     for name in _BASE_FIELDS:
         if not values[f'base_{name}'] > 0:
             raise ValueError(f'base_{name} must be > 0')

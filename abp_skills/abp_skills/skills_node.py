@@ -59,6 +59,7 @@ from abp_common.param_spec import check_all
 from abp_common.parameters import declare_all, read_all
 from abp_common.qos import LATCHED, LATCHED_READER
 from abp_description.kinematics import RobotKinematics
+from abp_description.robot_profile import PROFILE_SPEC, load_profile
 
 from .clock_rate import ClockRate
 from .feasibility_service import FeasibilityService
@@ -83,18 +84,22 @@ class SkillsNode(ManagedNode):
         self._feasibility = feasibility
 
     def configure(self):
-        self._specs = skills_parameter_specs(self._feasibility)
-        values = self._values = declare_all(self, self._specs)
+        # The robot profile first: it sets the robot's defaults of the other parameters.
+        profile = load_profile(declare_all(self, (PROFILE_SPEC,))['robot_profile'])
+        self._specs = skills_parameter_specs(self._feasibility, profile)
+        values = self._values = {**declare_all(self, self._specs[1:]),
+                                 'robot_profile': profile.path}
         self.health = NodeHealth(self)   # declares its parameters: before the callback below
         # The motion planner owns one Pinocchio model/data (used under plan_lock); the
         # node's own forward kinematics (head aiming, estimate frames) use another (fk_lock).
-        kin = RobotKinematics()
+        kin = RobotKinematics(profile=profile)
         # All the helpers below use of this node (skill_context).
         self.ctx = SkillsContext(
             ros=self, health=self.health, callback_group=ReentrantCallbackGroup(),
             param=self.param, kin=kin, state=RobotState(self.now, kin.q_from_mapping),
             clock_rate=ClockRate(),   # fed by /joint_states (robot_topics)
-            motion_planner=SkillPlanner(RobotKinematics(), config_from_values(values)))
+            motion_planner=SkillPlanner(RobotKinematics(profile=profile),
+                                        config_from_values(values, profile)))
         self.add_on_set_parameters_callback(self._on_set_parameters)
 
     def activate(self):
@@ -140,7 +145,8 @@ class SkillsNode(ManagedNode):
         changes = {p.name: p.value for p in params}
         try:
             check_all(self._specs, changes)
-            config = config_from_values({**read_all(self, self._specs), **changes})
+            config = config_from_values({**read_all(self, self._specs), **changes},
+                                        self.ctx.kin.profile)
         except (ValueError, TypeError) as error:
             return SetParametersResult(successful=False, reason=str(error))
         with self.ctx.plan_lock:

@@ -236,8 +236,8 @@ def test_goal_overrides_and_config_validation(planner, home):
     higher = planner.plan('lift', home, CUBE, lift_height=0.12)
     assert higher.ok
     assert higher.targets['raised']['left'][2] == pytest.approx(CUBE[2] + 0.12)
-    with pytest.raises(ValueError, match='push_hand'):
-        SkillConfig(push_hand='middle').validate()
+    with pytest.raises(ValueError, match='push_hand must be one of right, left .the robot profile'):
+        planner.with_config(push_hand='middle')   # not a push arm of the robot profile
     with pytest.raises(ValueError, match='flip_grasp_offset'):
         SkillConfig(flip_grasp_offset=0.2).validate()
     for name in ('grasp_squeeze', 'flip_squeeze'):

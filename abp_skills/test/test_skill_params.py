@@ -18,7 +18,8 @@ def test_every_config_field_is_a_parameter_with_its_type():
     specs = {s.name: s for s in skills_parameter_specs(feasibility=False)}
     assert specs['feasibility_service'].default is False and specs['feasibility_service'].read_only
     assert specs['check_stride'].kind == 'int' and specs['base_approach'].kind == 'bool'
-    assert specs['push_hand'].choices == ('left', 'right')
+    assert set(specs['push_hand'].choices) == {'left', 'right'}   # the profile's push arms
+    assert specs['robot_profile'].default == '' and specs['robot_profile'].read_only
     assert specs['support_height'].range == (-1.0, 10.0)
     assert {f'base_{n}' for n in BaseLimits.__dataclass_fields__} <= set(specs)
     assert specs['timeout'].range == (1.0, 3600.0)

@@ -68,7 +68,7 @@ def cube_spot(camera_pose, edge):
     spot = origin + t * axis
     if np.hypot(*spot[:2]) < edge:
         raise ValueError('camera_pose: the camera looks at the spot below itself; the cube '
-                         'must stand in front of base_link (x towards it)')
+                         'must stand in front of the base frame (x towards it)')
     return spot[:2]
 
 

@@ -52,6 +52,7 @@ from abp_common.param_spec import (
 )
 from abp_common.parameters import declare_all
 from abp_description import camera_intrinsics
+from abp_description.robot_profile import PROFILE_SPEC, load_profile
 from abp_msgs.msg import SimGroundTruth
 
 from . import sim_messages
@@ -64,14 +65,15 @@ TERMINAL_SPEC = ParamSpec(
     "of its pty, at start: the operator_skills node's `terminal` (required).",
     read_only=True)
 SCRIPTED_SPECS = (
-    *POPULATION_SPECS, TRANSITION_RULES_SPEC,
+    *POPULATION_SPECS, TRANSITION_RULES_SPEC, PROFILE_SPEC,
     ParamSpec('model_index', INT, -1, 'Index of the hidden model in the model set; -1 = drawn '
               'with cube_seed.', (-1, 10**7), read_only=True),
     ParamSpec('cube_seed', INT, 0, 'Seed of the random choice of the hidden model.',
               SEED_RANGE, read_only=True),
     ParamSpec('camera_pose', DOUBLE_ARRAY, [0.0, 0.0, 0.4, 0.0, 45.0, 0.0], 'Where the camera '
               'stands: [x, y, z, roll, pitch, yaw] (m, deg) of the camera body (x forward, z '
-              "up, positive pitch looks down) in base_link: the detector's fixed_camera_pose.",
+              "up, positive pitch looks down) in the profile's base frame: the detector's "
+              'fixed_camera_pose.',
               read_only=True),
     ParamSpec('cube_up_face', INT, 4, 'Body face up at the start (0:+x 1:-x 2:+y 3:-y 4:+z '
               '5:-z).', (0, 5), read_only=True),
@@ -135,6 +137,8 @@ class ScriptedOperatorNode(ManagedNode):
 
         v = self._values = declare_all(self, SCRIPTED_SPECS)
         check_rendering()  # no EGL: a configuration error with the fix, not a traceback
+        # The frame the detector gives poses in (its base_frame default): the truth's too.
+        self.base_frame = load_profile(v['robot_profile']).frames.base
         self.hidden = choose_hidden_model(
             (), 0, v['model_set'], v['model_set_size'], v['n_tags'], v['seed'],
             v['model_file'], v['model_index'], v['cube_seed'])
@@ -227,7 +231,7 @@ class ScriptedOperatorNode(ManagedNode):
         up, yaw = world.discrete_state()
         msg = SimGroundTruth()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = 'base_link'
+        msg.header.frame_id = self.base_frame
         msg.object_id, msg.model_index = hidden.object_id, int(hidden.model_index)
         msg.face_tags = [int(t) for t in hidden.face_tags]
         msg.mass_index = int(hidden.mass_index)

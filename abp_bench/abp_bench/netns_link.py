@@ -18,6 +18,7 @@ UDP only (`FASTDDS_BUILTIN_TRANSPORTS=UDPv4`, `UDP_ONLY`); the interface byte co
 
 import json
 import os
+import pathlib
 import secrets
 import shutil
 import signal
@@ -28,6 +29,20 @@ import time
 # Fast DDS's built-in transports: UDP only, no shared memory between the namespaces.
 UDP_ONLY = {'FASTDDS_BUILTIN_TRANSPORTS': 'UDPv4'}
 ROBOT, WORKSTATION = 'robot', 'workstation'
+
+
+def link_environment():
+    """The environment of every process on either side of the link: UDP only, and the
+    split graph's Fast DDS profile (its 5 s participant lease, abp_bringup
+    config/fastdds_link.xml). Every participant needs the same lease: one that keeps a
+    longer lease is still "known" to the others when the link comes back after the
+    shorter lease ended, and Fast DDS then never exchanges its endpoints again
+    (eProsima/Fast-DDS#155, #457): a long-lived client of the robot's services, started
+    outside start_graph.sh, would stay deaf."""
+    from ament_index_python.packages import get_package_share_directory
+    profile = pathlib.Path(get_package_share_directory('abp_bringup')) / 'config' / \
+        'fastdds_link.xml'
+    return {**UDP_ONLY, 'FASTRTPS_DEFAULT_PROFILES_FILE': str(profile)}
 
 
 def unavailable():
@@ -173,4 +188,5 @@ class TwoHostLink:
         return _run('ip', 'netns', 'exec', self.namespace[side], 'ss', '-uanp').splitlines()
 
 
-__all__ = ['ROBOT', 'UDP_ONLY', 'WORKSTATION', 'TwoHostLink', 'unavailable']
+__all__ = ['ROBOT', 'UDP_ONLY', 'WORKSTATION', 'TwoHostLink', 'link_environment',
+           'unavailable']

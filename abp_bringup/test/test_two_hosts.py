@@ -28,7 +28,13 @@ import sys
 import pytest
 
 from abp_belief.population import robot_set
-from abp_bench.netns_link import ROBOT, UDP_ONLY, WORKSTATION, TwoHostLink, unavailable
+from abp_bench.netns_link import (
+    ROBOT,
+    WORKSTATION,
+    TwoHostLink,
+    link_environment,
+    unavailable,
+)
 from tests.helpers.graph import graph_processes, node_log_tails
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
@@ -67,7 +73,9 @@ class SplitGraph:
     def __init__(self, ros_processes, link, tmp_path, static_peers, params=None):
         self.processes, self.link, self.tmp_path = ros_processes, link, tmp_path
         self.index, self.object_id = uniform_cube()
-        self.env = {**os.environ, **UDP_ONLY, 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
+        # UDP only, and one participant lease for every process on both sides.
+        self.env = {**os.environ, **link_environment(),
+                    'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
         self.env.pop('ROS_STATIC_PEERS', None)
         graph = ['--world', 'rules', '--seed', SEED, '--object', self.index, '--no-build']
         if params:

@@ -1,7 +1,7 @@
 """`python -m abp_bench.link_wait [--timeout S] [--ros-args ...]`: wait until the
 lifecycle manager says the graph is ready (true on its latched `~/graph_ready`), exit 0;
 1 after `--timeout` s. For a driver in another network namespace than the manager's
-(abp_bringup/test/test_two_hosts.py, abp_bench.link_benchmark): after the link comes back,
+(abp_bench/test/test_two_hosts.py, abp_bench.link_benchmark): after the link comes back,
 the next goal waits for the graph, not for a guessed time."""
 
 import argparse

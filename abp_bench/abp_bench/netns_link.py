@@ -1,6 +1,6 @@
 """Two "hosts" on one Linux machine: two network namespaces joined by a veth pair, with a
 rate limit on the link, for running the robot part of the graph in one and the workstation
-part in the other (docs/OFFBOARD.md; abp_bringup/test/test_two_hosts.py,
+part in the other (docs/OFFBOARD.md; abp_bench/test/test_two_hosts.py,
 abp_bench.link_benchmark).
 
 Each namespace has `lo` and its end of the veth pair, with an address of a private /24

@@ -183,6 +183,21 @@ class TwoHostLink:
         return subprocess.run(self.command(side, [sys.executable, '-c', send]),
                               capture_output=True).returncode == 0
 
+    def shared_memory_files(self, side):
+        """The /dev/shm files that the processes in the namespace of `side` map (Fast DDS's
+        shared-memory transport and data sharing would show as fastrtps_* and
+        fast_datasharing* there)."""
+        pids = subprocess.run(['ip', 'netns', 'pids', self.namespace[side]],
+                              capture_output=True, text=True).stdout.split()
+        files = set()
+        for pid in pids:
+            try:
+                with open(f'/proc/{pid}/maps') as maps:
+                    files.update(line.split()[-1] for line in maps if '/dev/shm/' in line)
+            except OSError:
+                pass   # gone meanwhile
+        return files
+
     def sockets(self, side):
         """The UDP sockets open in the namespace of `side` (`ss -uan` lines)."""
         return _run('ip', 'netns', 'exec', self.namespace[side], 'ss', '-uanp').splitlines()

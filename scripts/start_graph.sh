@@ -57,16 +57,22 @@
 #   --one-process        run the managed nodes in one process on one executor
 #                        (abp_bringup graph_container; docs/STARTUP.md): a node that dies
 #                        takes the others with it, and the container is restarted as one
+#   --part P             robot | workstation | all: start only this part of the graph, for a
+#                        split over a network (docs/OFFBOARD.md; abp_common.graph_nodes):
+#                        robot = sim bridge or drivers, perception, skills, serving until
+#                        Ctrl-C like --serve; workstation = belief, planner, the lifecycle
+#                        manager (it brings up the robot's nodes over the network) and the
+#                        goal. Give both parts the same graph options.       (default all)
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 tables=""
-respawn=1; serve=0; record_images=false; one_process=0
+respawn=1; serve=0; record_images=false; one_process=0; part=all
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
 wrong_action_fraction=""; operator_silent=false
-usage() { sed -n '2,59p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,65p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -76,6 +82,7 @@ while [ $# -gt 0 ]; do
     --no-respawn) respawn=0; shift ;;
     --serve) serve=1; shift ;;
     --one-process) one_process=1; shift ;;
+    --part) part="${2:?--part needs a value}"; shift 2 ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; shift 2 ;;
     --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
@@ -102,6 +109,7 @@ while [ $# -gt 0 ]; do
   esac
 done
 [[ "$world" =~ ^(mujoco|rules)$ ]] || die "--world must be mujoco or rules"
+[[ "$part" =~ ^(robot|workstation|all)$ ]] || die "--part must be robot, workstation or all"
 [ -n "$tables" ] || { [ "$world" = rules ] && [ "$robot" = 0 ] && tables=paper || tables=corrected; }
 [[ "$tables" =~ ^(corrected|paper)$ ]] || die "--tables must be corrected or paper"
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
@@ -168,9 +176,18 @@ for name in (names.BELIEF, names.ASPECT_OBSERVATION, names.EXECUTED_ACTION, name
 PY
 )
 belief_topic="${topics[0]}"; observation_topic="${topics[1]}"
+# The managed nodes this part starts (all of them unless the graph is split, --part).
+graph=sim; [ "$robot" = 1 ] && graph=robot; [ -n "$operator" ] && graph=$( [ "$operator" = scripted ] && echo scripted || echo operator)
+part_nodes=" $(python -m abp_common.graph_nodes --graph "$graph" --part "$part" | cut -d' ' -f1 | tr '\n' ' ')"
 action_topic="${topics[2]}"; plan_topic="${topics[3]}"
 
 config="$(python -c 'from ament_index_python.packages import get_package_share_directory as g; print(g("abp_bringup"))')/config/abp.yaml"
+# A split graph runs over a link that can drop: Fast DDS's participant lease of 5 s instead
+# of 20 s (the planner sees a lost link within seconds; docs/OFFBOARD.md), unless the
+# environment names its own Fast DDS profile.
+if [ "$part" != all ] && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}${FASTDDS_DEFAULT_PROFILES_FILE:-}" ]; then
+  export FASTRTPS_DEFAULT_PROFILES_FILE="${config%/abp.yaml}/fastdds_link.xml"
+fi
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$log_dir"
 model_params="$log_dir/model_set.yaml"
@@ -248,11 +265,15 @@ supervise() {
 # With --one-process the managed nodes are not started one by one: their own parameters
 # (the -p arguments here, use_sim_time) go to a parameters file under each node's name,
 # and one graph_container runs them all (started below).
-managed=()
+managed=()   # every managed node of the graph, in bring-up order (the manager's list)
+local_managed=()   # those this part starts
 container_params="$log_dir/graph_container.yaml"
 [ "$one_process" = 1 ] && : > "$container_params"
 start_managed() {
   managed+=("$2")
+  # Another part's node: the lifecycle manager reaches it over the network.
+  [[ "$part_nodes" == *" $2 "* ]] || return 0
+  local_managed+=("$2")
   if [ "$one_process" = 0 ]; then
     start "$@" -p autostart:=false
     return
@@ -286,7 +307,7 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}$( [ "$part" = all ] || echo ", $part part"), models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
 if [ -n "$operator" ]; then
   # A camera that does not move and a person for the skills (docs/OPERATOR.md): no sim
   # bridge, no robot_state; the detector takes the camera pose from --camera-pose, not
@@ -338,10 +359,11 @@ if [ -n "$record" ]; then
 fi
 
 node_list="$(IFS=,; echo "${managed[*]}")"
-if [ "$one_process" = 1 ]; then
+local_list="$(IFS=,; echo "${local_managed[*]}")"
+if [ "$one_process" = 1 ] && [ -n "$local_list" ]; then
   container=("$REPO/install/abp_bringup/lib/abp_bringup/graph_container")
   command -v ros2 >/dev/null 2>&1 && container=(ros2 run abp_bringup graph_container)
-  container+=(--nodes "$node_list" --ros-args --params-file "$config" --params-file "$model_params")
+  container+=(--nodes "$local_list" --ros-args --params-file "$config" --params-file "$model_params")
   [ -n "$params" ] && container+=(--params-file "$params")
   container+=("${ns_args[@]}" --params-file "$container_params" -p autostart:=false)
   : > "$log_dir/graph_container.log"
@@ -354,6 +376,13 @@ if [ "$operator" = scripted ]; then
   # operator_skills opens its terminal when the manager configures it.
   for _ in $(seq 600); do [ -L "$operator_terminal" ] && break; sleep 0.1; done
   [ -L "$operator_terminal" ] || { echo "[start_graph] the scripted operator made no pty at $operator_terminal within 60 s; its log:" >&2; tail -5 "$log_dir/$( [ "$one_process" = 1 ] && echo graph_container || echo scripted_operator).log" >&2; exit 1; }
+fi
+if [ "$part" = robot ]; then
+  # The workstation's lifecycle manager brings these nodes up over the network.
+  echo "[start_graph] robot part up: ${local_managed[*]} started unconfigured, for the" \
+       "workstation's lifecycle manager; serving until Ctrl-C"
+  wait || true
+  exit 0
 fi
 start abp_bringup lifecycle_manager -p "node_names:=[$node_list]"
 manager_log="$log_dir/lifecycle_manager.log"

@@ -8,14 +8,17 @@ import sys
 import pytest
 
 from abp_common.graph_nodes import (
+    ALL_PARTS,
     GRAPH,
     GRAPH_NODE_NAMES,
     GRAPHS,
     OPERATOR,
     ROBOT,
     ROBOT_NODE_NAMES,
+    ROBOT_PART,
     SCRIPTED,
     SIM,
+    WORKSTATION_PART,
     graph_nodes,
 )
 from tests.helpers.manifests import REPO
@@ -36,6 +39,21 @@ def test_the_list_is_consistent():
     assert [n.name for n in GRAPH if n.sim_only] == ['sim_bridge', 'scripted_operator']
     with pytest.raises(ValueError, match='graph must be one of'):
         graph_nodes('moon')
+
+
+@pytest.mark.parametrize('graph', GRAPHS)
+def test_the_two_parts_split_each_graph(graph):
+    """--part robot and --part workstation start every node of the graph once between
+    them, in the graph's order; the workstation runs the belief and the planner only (no
+    node that drives hardware or reads images)."""
+    robot = graph_nodes(graph, ROBOT_PART)
+    workstation = graph_nodes(graph, WORKSTATION_PART)
+    assert [n.name for n in workstation] == ['belief', 'planner']
+    assert set(robot) | set(workstation) == set(graph_nodes(graph, ALL_PARTS))
+    assert not set(robot) & set(workstation)
+    assert graph_nodes(graph) == graph_nodes(graph, ALL_PARTS)
+    with pytest.raises(ValueError, match='part must be one of'):
+        graph_nodes(graph, 'moon')
 
 
 def start_managed(text):
@@ -73,11 +91,13 @@ def test_the_lifecycle_manager_and_soak_use_the_list():
 
 
 @pytest.mark.parametrize('graph', GRAPHS)
-def test_the_module_prints_the_list(graph):
-    out = subprocess.run([sys.executable, '-m', 'abp_common.graph_nodes', '--graph', graph],
-                         capture_output=True, text=True, check=True).stdout
+@pytest.mark.parametrize('part', (ROBOT_PART, WORKSTATION_PART, ALL_PARTS))
+def test_the_module_prints_the_list(graph, part):
+    # start_graph.sh --part reads the part's nodes from this output.
+    out = subprocess.run([sys.executable, '-m', 'abp_common.graph_nodes', '--graph', graph,
+                          '--part', part], capture_output=True, text=True, check=True).stdout
     assert [tuple(line.split()) for line in out.splitlines()] == \
-        [(n.name, n.package, n.executable) for n in graph_nodes(graph)]
+        [(n.name, n.package, n.executable) for n in graph_nodes(graph, part)]
 
 
 def test_the_one_process_container_can_build_every_node():

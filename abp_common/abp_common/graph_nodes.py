@@ -12,10 +12,17 @@ The order is the bring-up order (dependencies first): the sensors (the sim bridg
 and sensors, or the camera), the robot's tf tree (robot_state), perception, the belief,
 the skills, the planner last. A graph's nodes keep this order.
 
+Each node also belongs to one *part* of the graph, for a split over a network
+(`start_graph.sh --part`, docs/OFFBOARD.md): `robot` (what must run on the robot: the sim
+bridge standing in for it or its drivers, the camera, perception and the skill servers,
+which drive the hardware and see every camera frame) or `workstation` (the belief and the
+planner, whose inputs are small messages). Images never cross the link in this split.
+
 Python users import it (abp_bringup.lifecycle_manager, abp.launch.py, abp_bench.soak);
 scripts/start_graph.sh starts the same nodes with its own per-node arguments, and
 tests/test_graph_nodes.py fails when its `start_managed` lines differ from this list.
-`python -m abp_common.graph_nodes [--graph G]` prints `name package executable` lines.
+`python -m abp_common.graph_nodes [--graph G] [--part P]` prints `name package executable`
+lines.
 """
 
 import argparse
@@ -27,6 +34,9 @@ _ALL = frozenset(GRAPHS)
 _WITH_ROBOT = frozenset((SIM, ROBOT))
 _WITH_OPERATOR = frozenset((OPERATOR, SCRIPTED))
 _SIMULATED = frozenset((SIM, SCRIPTED))
+# The parts of a graph split over a network; ALL_PARTS is both (one machine).
+ROBOT_PART, WORKSTATION_PART, ALL_PARTS = 'robot', 'workstation', 'all'
+PARTS = (ROBOT_PART, WORKSTATION_PART, ALL_PARTS)
 
 
 class GraphNode(NamedTuple):
@@ -34,6 +44,7 @@ class GraphNode(NamedTuple):
     package: str
     executable: str
     graphs: frozenset   # the graphs it runs in (SIM, ROBOT, OPERATOR, SCRIPTED)
+    part: str = ROBOT_PART   # where it runs when the graph is split: ROBOT_PART or WORKSTATION_PART
 
     @property
     def sim_only(self):
@@ -51,19 +62,23 @@ GRAPH = (
     GraphNode('robot_state', 'abp_description', 'robot_state', _WITH_ROBOT),
     GraphNode('artag_detector', 'abp_perception', 'artag_detector', _ALL),
     GraphNode('aspect_matcher', 'abp_perception', 'aspect_matcher', _ALL),
-    GraphNode('belief', 'abp_belief', 'belief', _ALL),
+    GraphNode('belief', 'abp_belief', 'belief', _ALL, WORKSTATION_PART),
     # The four action servers in one process.
     GraphNode('skill_servers', 'abp_skills', 'skill_servers', _WITH_ROBOT),
     GraphNode('operator_skills', 'abp_skills', 'operator_skills', _WITH_OPERATOR),
-    GraphNode('planner', 'abp_planner', 'planner', _ALL),
+    GraphNode('planner', 'abp_planner', 'planner', _ALL, WORKSTATION_PART),
 )
 
 
-def graph_nodes(graph=SIM):
-    """The nodes of `graph` (SIM, ROBOT, OPERATOR or SCRIPTED), in bring-up order."""
+def graph_nodes(graph=SIM, part=ALL_PARTS):
+    """The nodes of `graph` (SIM, ROBOT, OPERATOR or SCRIPTED) that run in `part`
+    (ROBOT_PART, WORKSTATION_PART or ALL_PARTS), in bring-up order."""
     if graph not in GRAPHS:
         raise ValueError(f'graph must be one of {", ".join(GRAPHS)}, got {graph!r}')
-    return tuple(node for node in GRAPH if graph in node.graphs)
+    if part not in PARTS:
+        raise ValueError(f'part must be one of {", ".join(PARTS)}, got {part!r}')
+    return tuple(node for node in GRAPH
+                 if graph in node.graphs and part in (ALL_PARTS, node.part))
 
 
 GRAPH_NODE_NAMES = tuple(node.name for node in graph_nodes(SIM))
@@ -74,8 +89,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser(prog='python -m abp_common.graph_nodes',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--graph', choices=GRAPHS, default=SIM, help='which graph (default sim)')
+    parser.add_argument('--part', choices=PARTS, default=ALL_PARTS,
+                        help='only the nodes of this part of a split graph (default all)')
     args = parser.parse_args(argv)
-    for node in graph_nodes(args.graph):
+    for node in graph_nodes(args.graph, args.part):
         print(node.name, node.package, node.executable)
     return 0
 
@@ -84,5 +101,6 @@ if __name__ == '__main__':
     raise SystemExit(main())
 
 
-__all__ = ['GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'ROBOT', 'ROBOT_NODE_NAMES',
-           'SCRIPTED', 'SIM', 'GraphNode', 'graph_nodes']
+__all__ = ['ALL_PARTS', 'GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'PARTS', 'ROBOT',
+           'ROBOT_NODE_NAMES', 'ROBOT_PART', 'SCRIPTED', 'SIM', 'WORKSTATION_PART', 'GraphNode',
+           'graph_nodes']

@@ -35,6 +35,8 @@ FEASIBILITY_RETRY_S = 0.5
 LATEST_BELIEF_WAIT_S = 1.0
 # While paused for a lost node: how often to look for it again.
 NODE_POLL_S = 0.5
+# While waiting for an action's evidence: how often to ask whether its sources are gone.
+EVIDENCE_CHECK_S = 1.0
 # The name `missing_nodes()` gives the belief node (its return means re-observing).
 BELIEF_NODE = 'belief'
 
@@ -366,9 +368,17 @@ class EpisodeRunner:
         A belief whose step went back is from a belief node that restarted (a respawn)
         before DDS noticed the old one gone: its belief lacks this episode's evidence, so
         the episode re-observes from a reset belief."""
-        fresh = self.ports.wait_for_belief(
-            lambda b: b.step >= expected_step or b.step < step_before,
-            self.observation_timeout_s)
+        deadline = self.clock() + self.observation_timeout_s
+        while True:
+            fresh = self.ports.wait_for_belief(
+                lambda b: b.step >= expected_step or b.step < step_before,
+                max(0.0, min(EVIDENCE_CHECK_S, deadline - self.clock())))
+            if fresh is not None or self.clock() >= deadline:
+                break
+            # No evidence yet: the nodes it comes from may be gone (a link that dropped
+            # takes them all): pause for them, naming them, rather than plan on without.
+            if self.ports.missing_nodes():
+                return self._wait_for_lost_nodes(None)
         if self.ports.belief_restarted() or (fresh is not None and fresh.step < step_before):
             self.log.warning(f'the belief went back from step {step_before} (now step '
                              f'{fresh.step if fresh is not None else "-"}): the belief node '

@@ -161,6 +161,36 @@ def test_a_lost_belief_node_pauses_the_episode_and_its_return_restarts_the_evide
     assert result.actions_taken == 1 + 3  # the evidence of the first action was lost
 
 
+def test_evidence_cut_off_by_a_lost_link_pauses_the_episode_naming_what_is_gone(caplog):
+    """A link to the robot drops as the first action is done: its evidence and the nodes
+    it comes from are gone for 10 s. The runner pauses naming them (it does not wait out
+    the observation timeout and plan on), and goes on when they are back."""
+    clock = FakeClock()
+    lost = ['aspect observations (/abp/aspect_observation)',
+            'skill servers (/abp/skills/orbit)']
+
+    def link_down(ports):
+        return bool(ports.executed) and clock() < 10.0
+
+    class Dropped(FakePorts):
+        def wait_for_belief(self, predicate, timeout_s):
+            if link_down(self):
+                self.clock.sleep(timeout_s)
+                return None
+            return super().wait_for_belief(predicate, timeout_s)
+
+    ports = Dropped(clock, gain=0.2, missing=lambda p: lost if link_down(p) else [])
+    with caplog.at_level(logging.INFO, logger='episode'):
+        result = run(ports, timeout=20.0)
+    assert result.outcome == SUCCEEDED and result.success
+    paused = [r.getMessage() for r in caplog.records if 'episode paused' in r.getMessage()]
+    assert len(paused) == 1 and all(name in paused[0] for name in lost), paused
+    assert any('back: re-observing' in r.getMessage() for r in caplog.records)
+    # Noticed within a second of the evidence wait, not after the 20 s timeout.
+    assert 10.0 <= clock() < 12.0
+    assert ports.resets == 1   # the belief node was not lost: no reset
+
+
 def test_a_belief_that_goes_back_means_a_restarted_belief_node():
     # Respawned before DDS saw the old node go: no pause, but its belief starts again.
     class Respawned(FakePorts):

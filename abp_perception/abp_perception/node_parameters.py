@@ -119,7 +119,7 @@ DETECTOR_SPECS = (
               'refining.'),
     ParamSpec('face_search', BOOL, True, 'Decode the tags predicted on the cube faces next '
               'to found tags, also when blurred (needs cube_size > 0; detector.TagDetector).'),
-    ParamSpec('face_search_budget_ms', DOUBLE, 20.0, 'CPU time per frame the face search '
+    ParamSpec('face_search_budget_ms', DOUBLE, 30.0, 'CPU time per frame the face search '
               'and tracking may spend decoding blurred tags by correlation: a quad is tried '
               'only while its expected cost fits (~4 ms for DICT_4X4_50, ~34 ms for '
               'DICT_APRILTAG_36h11); 0 = bit decoding only.', (0.0, 1000.0)),

@@ -29,6 +29,7 @@ all the others.
 
 from __future__ import annotations
 
+import time
 from functools import lru_cache
 
 import cv2
@@ -36,7 +37,8 @@ import numpy as np
 
 from .corners import square_homographies
 
-__all__ = ['decode_blurred', 'blur_kernels', 'code_matrix', 'darkness', 'marker_contrast']
+__all__ = ['DecodeBudget', 'quad_seconds', 'decode_blurred', 'blur_kernels', 'code_matrix',
+           'darkness', 'marker_contrast']
 
 # Canonical sample grid (marker spans [0, cells]); a little of the quiet zone included.
 _SAMPLES_PER_AXIS = 14
@@ -174,17 +176,65 @@ def marker_contrast(gray, quads, cells: int):
     return frame, bits[0] - bits[1]
 
 
+class DecodeBudget:
+    """The CPU time (``time.thread_time``) one frame's blurred-code decoding may take, s.
+    ``decode_blurred`` decodes a quad only when its expected cost (``quad_seconds``) fits
+    in what is left, and charges what it took; `skipped` counts the quads it left out.
+    The cost grows with the dictionary: ~4 ms a quad for DICT_4X4_50, ~34 ms for
+    DICT_APRILTAG_36h11 (2,348 codes and rotations of 8 x 8 cells)."""
+
+    def __init__(self, seconds: float):
+        if not (np.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f'a decode budget must be >= 0 s, got {seconds}')
+        self.left = float(seconds)
+        self.skipped = 0
+
+    def affords(self, cost: float) -> bool:
+        return cost <= self.left
+
+    def charge(self, seconds: float):
+        self.left -= float(seconds)
+
+
+# Measured CPU seconds of one quad's correlation per dictionary (moving average), and the
+# prior used before any measurement: overhead + a share of the code x kernel x cell^2 work.
+_QUAD_SECONDS = {}
+_PRIOR_OVERHEAD_S, _PRIOR_PER_UNIT_S = 3e-3, 1e-10
+
+
+def quad_seconds(dictionary) -> float:
+    """Expected CPU seconds of ``decode_blurred`` on one quad of `dictionary` (after the
+    darkness screen): the moving average of the measured ones, or a prior from the
+    dictionary's size before the first."""
+    codes = np.asarray(dictionary.bytesList)
+    key = (int(dictionary.markerSize), codes.shape[0])
+    if key not in _QUAD_SECONDS:
+        cells = key[0] + 2
+        units = 4 * codes.shape[0] * blur_kernels()[3] * (cells * cells + 1) ** 2
+        return _PRIOR_OVERHEAD_S + _PRIOR_PER_UNIT_S * units
+    return _QUAD_SECONDS[key]
+
+
+def _measured(dictionary, seconds):
+    codes = np.asarray(dictionary.bytesList)
+    key = (int(dictionary.markerSize), codes.shape[0])
+    old = _QUAD_SECONDS.get(key)
+    _QUAD_SECONDS[key] = seconds if old is None else 0.8 * old + 0.2 * seconds
+
+
 def decode_blurred(gray, quads, dictionary, min_corr=MIN_CORR, margin=MARGIN,
-                   min_contrast=MIN_CONTRAST, min_darkness=MIN_DARKNESS, kernels=None):
+                   min_contrast=MIN_CONTRAST, min_darkness=MIN_DARKNESS, kernels=None,
+                   budget=None):
     """Per quad (Q, 4, 2), clockwise on screen: (id, rotation, corr) or None.
 
     `rotation` as ``corners.decode_quads``: ``np.roll(quad, rotation, axis=0)`` is in
-    ArUco order. See the module docstring for the model and the acceptance test."""
+    ArUco order. See the module docstring for the model and the acceptance test.
+    `budget` (``DecodeBudget`` or None: unlimited): quads it cannot afford are None."""
     q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
     if q.shape[0] == 0:
         return []
     cells = int(dictionary.markerSize) + 2
-    x, ids, rots = code_matrix(dictionary)
+    codes = code_matrix(dictionary)
     kernels = blur_kernels() if kernels is None else kernels
     g = np.linspace(-_SAMPLE_PAD, cells + _SAMPLE_PAD, _SAMPLES_PER_AXIS)
     canon = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
@@ -195,36 +245,50 @@ def decode_blurred(gray, quads, dictionary, min_corr=MIN_CORR, margin=MARGIN,
         if (min_darkness is not None and not dk >= min_darkness) or not np.isfinite(h).all():
             out.append(None)
             continue
-        try:
-            h_inv = np.linalg.inv(h)
-        except np.linalg.LinAlgError:
+        if budget is not None and not budget.affords(quad_seconds(dictionary)):
+            budget.skipped += 1
             out.append(None)
             continue
-        s = cv2.perspectiveTransform(canon[None].astype(np.float64), h)[0]
-        v = cv2.remap(img, s[:, 0].astype(np.float32)[None], s[:, 1].astype(np.float32)[None],
-                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
-        a = _design(h_inv, s, kernels, cells)                                # (K, N, C)
-        a = a - a.mean(axis=1, keepdims=True)
-        vc = v - v.mean()
-        vn = float(np.sqrt(vc @ vc))
-        if vn < 1e-9:
-            out.append(None)
-            continue
-        atv = (vc @ a)                                                       # (K, C)
-        gram = a.transpose(0, 2, 1) @ a                                      # (K, C, C)
-        num = atv @ x.T                                                      # (K, M)
-        var = ((x @ gram) * x).sum(axis=2)                                   # (K, M)
-        with np.errstate(divide='ignore', invalid='ignore'):
-            corr = np.where(var > 1e-12, num / (np.sqrt(np.maximum(var, 1e-300)) * vn), -1.0)
-        best_k = np.argmax(corr, axis=0)                                     # per code
-        per_code = corr[best_k, np.arange(corr.shape[1])]
-        m1 = int(np.argmax(per_code))
-        c1 = float(per_code[m1])
-        other = per_code[ids != ids[m1]]
-        c2 = float(other.max()) if other.size else -1.0
-        k1 = int(best_k[m1])
-        gain = num[k1, m1] / max(var[k1, m1], 1e-12)                        # b of the fit
-        ok = (c1 >= min_corr and (1.0 - c2) >= margin * (1.0 - c1)
-              and gain >= min_contrast)
-        out.append((int(ids[m1]), int(rots[m1]), c1) if ok else None)
+        start = time.thread_time()
+        out.append(_correlate(img, h, canon, kernels, cells, codes, min_corr, margin,
+                              min_contrast))
+        took = time.thread_time() - start
+        _measured(dictionary, took)
+        if budget is not None:
+            budget.charge(took)
     return out
+
+
+def _correlate(img, h, canon, kernels, cells, codes, min_corr, margin, min_contrast):
+    """(id, rotation, corr) of the code that best explains the image at homography `h`
+    under some kernel, or None (``decode_blurred``'s test)."""
+    x, ids, rots = codes
+    try:
+        h_inv = np.linalg.inv(h)
+    except np.linalg.LinAlgError:
+        return None
+    s = cv2.perspectiveTransform(canon[None].astype(np.float64), h)[0]
+    v = cv2.remap(img, s[:, 0].astype(np.float32)[None], s[:, 1].astype(np.float32)[None],
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)[0].astype(np.float64)
+    a = _design(h_inv, s, kernels, cells)                                    # (K, N, C)
+    a = a - a.mean(axis=1, keepdims=True)
+    vc = v - v.mean()
+    vn = float(np.sqrt(vc @ vc))
+    if vn < 1e-9:
+        return None
+    atv = (vc @ a)                                                           # (K, C)
+    gram = a.transpose(0, 2, 1) @ a                                          # (K, C, C)
+    num = atv @ x.T                                                          # (K, M)
+    var = ((x @ gram) * x).sum(axis=2)                                       # (K, M)
+    with np.errstate(divide='ignore', invalid='ignore'):
+        corr = np.where(var > 1e-12, num / (np.sqrt(np.maximum(var, 1e-300)) * vn), -1.0)
+    best_k = np.argmax(corr, axis=0)                                         # per code
+    per_code = corr[best_k, np.arange(corr.shape[1])]
+    m1 = int(np.argmax(per_code))
+    c1 = float(per_code[m1])
+    other = per_code[ids != ids[m1]]
+    c2 = float(other.max()) if other.size else -1.0
+    k1 = int(best_k[m1])
+    gain = num[k1, m1] / max(var[k1, m1], 1e-12)                            # b of the fit
+    ok = (c1 >= min_corr and (1.0 - c2) >= margin * (1.0 - c1) and gain >= min_contrast)
+    return (int(ids[m1]), int(rots[m1]), c1) if ok else None

@@ -31,7 +31,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-__all__ = ['refine_quads', 'decode_quads', 'quad_areas', 'inside_any_quad', 'code_table',
+__all__ = ['refine_quads', 'keep_better_corners', 'corner_edge_residuals', 'decode_quads',
+           'quad_areas', 'inside_any_quad', 'code_table',
            'square_homographies']
 
 # Edge-profile sampling: fractions of each edge, samples across it (wide first pass to
@@ -204,6 +205,93 @@ def refine_quads(gray, quads, passes: int = 2):
         moved[idx] = np.where(valid, shift, 0.0)
         ok[idx[~valid]] = False
     return q, ok
+
+
+# Edge residual at the corners (``corner_edge_residuals``): profiles across each edge at
+# _NEAR_STEPS fractions of it from either end (the first no nearer to the corner than
+# 1.5 profile half-lengths), half-length in cells (px bounds).
+_NEAR_STEPS = np.arange(4) * 0.04
+RESIDUAL_HALF_CELLS, RESIDUAL_HALF_PX = 0.3, (1.5, 6.0)
+_ACROSS_RESIDUAL = np.linspace(0.0, 1.0, 25)
+# A refined quad is kept unless its residual exceeds the unrefined one's by this, px,
+# plus half the unrefined one's (blurred edges measure noisily).
+REFINE_TOLERANCE_PX = 0.1
+# Only quads at least this large (sqrt of the area, px) are checked: a curved edge's
+# offset at the corners grows with the side squared (1-3.4 px at 300-400 px on the
+# renders, under 0.1 px at 64 px), and on small tags the contour corners are the worse
+# ones (checking them cost recall and accuracy at 1.5-2.5 m on the realistic suite).
+CHECK_MIN_SIDE_PX = 64.0
+
+
+def corner_edge_residuals(gray, quads) -> np.ndarray:
+    """(Q,) RMS distance (px) of each quad's corners from the marker's edges measured next
+    to them: on each edge, the dark -> bright rise (as the edge fit finds it) at four
+    points near each end, fitted by a line and extrapolated to the corner; the offsets
+    there from both edges of the four corners. inf where a corner's edge is not found.
+    Curved edges (lens distortion, a bent print) leave the lines the edge fit puts
+    through the edges' middles off the corners; this measure sees that."""
+    q = np.array(quads, dtype=np.float64).reshape(-1, 4, 2)
+    if q.shape[0] == 0:
+        return np.zeros(0)
+    img = gray if gray.dtype == np.float32 else gray.astype(np.float32)
+    nq = q.shape[0]
+    sign = np.where(quad_areas(q) >= 0.0, 1.0, -1.0)
+    p0 = q.reshape(-1, 2)
+    d = q[:, _NEXT].reshape(-1, 2) - p0
+    length = np.sqrt((d * d).sum(axis=1))
+    u = d / np.maximum(length, 1e-9)[:, None]
+    n = np.repeat(sign, 4)[:, None] * np.stack([u[:, 1], -u[:, 0]], axis=1)   # outward
+    mid = (p0 + 0.5 * d).reshape(nq, 4, 2)
+    cell = np.abs(((mid - mid[:, _OPPOSITE]).reshape(-1, 2) * n).sum(axis=1)) / 6.0
+    half = np.clip(RESIDUAL_HALF_CELLS * cell, *RESIDUAL_HALF_PX)               # (E,)
+    first = np.clip(np.maximum(0.04, 1.5 * half / np.maximum(length, 1e-9)), 0.0, 0.3)
+    t_start = first[:, None] + _NEAR_STEPS[None]                                # (E, 4)
+    t = np.concatenate([t_start, 1.0 - t_start], axis=1)                        # (E, 8)
+    s = _ACROSS_RESIDUAL
+    base = p0[:, None, :] + t[:, :, None] * d[:, None, :]                       # (E, 8, 2)
+    offs = (2.0 * s[None, :] - 1.0) * half[:, None]                            # (E, S)
+    map_x = (base[:, :, None, 0] + offs[:, None, :] * n[:, None, None, 0]).astype(np.float32)
+    map_y = (base[:, :, None, 1] + offs[:, None, :] * n[:, None, None, 1]).astype(np.float32)
+    m, ns = t.shape[1], s.size
+    prof = cv2.remap(img, map_x.reshape(-1, ns), map_y.reshape(-1, ns), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(-1, m, ns)
+    unit, peak = _edge_offsets(prof, s)
+    y = (2.0 * unit - 1.0) * half[:, None]                                     # px, (E, 8)
+    w = np.where(peak > 2.0, 1.0, 0.0)
+    # Per edge end: a line y(t) over its four points, at the corner (t = 0 or 1).
+    ends = []
+    for cols, at in ((slice(0, 4), 0.0), (slice(4, 8), 1.0)):
+        tt, yy, ww = t[:, cols] - at, y[:, cols], w[:, cols]
+        s0, s1, s2 = ww.sum(axis=1), (ww * tt).sum(axis=1), (ww * tt * tt).sum(axis=1)
+        sy, sty = (ww * yy).sum(axis=1), (ww * tt * yy).sum(axis=1)
+        den = s0 * s2 - s1 * s1
+        good = (s0 >= 3) & (den > 1e-12)
+        slope = np.where(good, s0 * sty - s1 * sy, 0.0) / np.where(good, den, 1.0)
+        ends.append(np.where(good, (sy - slope * s1) / np.maximum(s0, 1e-12), np.nan))
+    off = np.stack(ends, axis=1).reshape(nq, 8)                                # (Q, 8)
+    rms = np.sqrt(np.mean(off * off, axis=1))
+    return np.where(np.isfinite(rms), rms, np.inf)
+
+
+def keep_better_corners(gray, refined, unrefined, tolerance=REFINE_TOLERANCE_PX,
+                        min_side_px=CHECK_MIN_SIDE_PX):
+    """Per quad, the refined corners unless they sit worse on the marker's edges near the
+    corners than the unrefined ones (``corner_edge_residuals`` larger by `tolerance` px
+    plus half the unrefined one's): the edge fit's straight lines through curved edges
+    (a 16-MP phone photo's lens) moved large tags' corners 5-6 px into the black square.
+    Quads under `min_side_px` keep their refined corners unchecked. Returns (quads,
+    refined kept (Q,) bool)."""
+    refined = np.asarray(refined, dtype=np.float64).reshape(-1, 4, 2)
+    unrefined = np.asarray(unrefined, dtype=np.float64).reshape(-1, 4, 2)
+    if refined.shape[0] == 0:
+        return refined.copy(), np.zeros(0, dtype=bool)
+    keep = np.ones(refined.shape[0], dtype=bool)
+    large = np.flatnonzero(np.sqrt(np.abs(quad_areas(unrefined))) >= min_side_px)
+    if large.size:
+        res = corner_edge_residuals(gray, np.concatenate([refined[large], unrefined[large]]))
+        after, before = res[:large.size], res[large.size:]
+        keep[large] = ~(after > before * 1.5 + tolerance)
+    return np.where(keep[:, None, None], refined, unrefined), keep
 
 
 # -- bit decoding --------------------------------------------------------------------------

@@ -11,7 +11,10 @@ Pipeline per grey image (``TagDetector.detect``):
    finds flat tags whose thin quiet zone the 3 and 13 px windows merge with the
    background (issue 16: 25 tags within 1.5 m).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
-   ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module).
+   ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module); on tags of 64 px and
+   more, kept only where they sit on the marker's edges next to the corners no worse
+   than the contour's corners (``corners.keep_better_corners``: straight lines through
+   the curved edges of a large tag in a distorted photo move its corners inwards).
 3. Second pass: candidates ArUco rejected are refined the same way and decoded again
    (``corners.decode_quads``, no error correction, black border and white quiet zone
    required; where the edge fit fails, at the contour corners). Far, foreshortened
@@ -25,7 +28,10 @@ Pipeline per grey image (``TagDetector.detect``):
    model of ``tag_pose`` (``TagPoseModel``, built from the detector's settings by
    ``TagDetector.pose_model``).
 5. Degenerate or implausible detections are dropped with a reason
-   (``DetectionResult.dropped``).
+   (``DetectionResult.dropped``): among them an RMS reprojection error above the larger
+   of ``max_reprojection_error`` px and ``max_reprojection_fraction`` of the tag's side,
+   and, after refinement, a second report of one tag (the same id within half a side:
+   ``tag_pose.unique_detections``; two threshold windows' contours of one tag).
    Face search (``face_search``, on when ``cube_size`` > 0): the cube faces next to each
    found tag that face the camera (within 75 deg) and hold no found tag are predicted
    from the tag's pose (``face_search.adjacent_face_boxes``; the mirrored IPPE pose too
@@ -35,7 +41,13 @@ Pipeline per grey image (``TagDetector.detect``):
    kernels (``blur_decode.decode_blurred``, ``blur_decode`` option), and get poses as in
    step 4; a second round predicts from the tags the first found
    (``DetectionResult.face_search`` counts them). It finds tags that motion blur and
-   JPEG leave without any ArUco contour.
+   JPEG leave without any ArUco contour. The correlation's CPU time per frame (with
+   tracking's) is bounded by ``face_search_budget_ms``: a quad is decoded only while its
+   expected cost (``blur_decode.quad_seconds``: measured, ~4 ms for DICT_4X4_50, ~34 ms
+   for DICT_APRILTAG_36h11) fits in what is left (``DetectionResult.decode_skipped``
+   counts the others). The faces are predicted from the cube's geometry: ``cube_size``
+   and ``marker_size`` (the tag-to-face ratio, 0.8 by default; set both for a cube
+   printed otherwise).
 6. Rigid cube (``cube_size`` > 0, default 0.10 m): tags whose centres are an adjacent-face
    distance apart are fitted as one rigid ARcube from all their corners, seeded by every
    IPPE solution of every tag (``rigid_cube``; it removes IPPE's mirrored-tilt flips).
@@ -70,8 +82,14 @@ import numpy as np
 
 from abp_description.robot_profile import load_profile
 
-from .blur_decode import marker_contrast
-from .corners import decode_quads, inside_any_quad, quad_areas, refine_quads
+from .blur_decode import DecodeBudget, marker_contrast
+from .corners import (
+    decode_quads,
+    inside_any_quad,
+    keep_better_corners,
+    quad_areas,
+    refine_quads,
+)
 from .face_search import (
     FACE_SEARCH_AMBIGUITY,
     FACE_SEARCH_ROUNDS,
@@ -103,6 +121,7 @@ from .region_search import (
 )
 from .rigid_cube import fit_cubes
 from .tag_pose import (
+    MAX_REPROJECTION_FRACTION,
     PARALLELOGRAM_PX,
     PNP_FALLBACK_PX,
     SMALL_TAG_PX2,
@@ -113,6 +132,7 @@ from .tag_pose import (
     marker_object_points,
     pose_covariance,
     transform_covariance,
+    unique_detections,
 )
 
 __all__ = [
@@ -155,7 +175,13 @@ CANDIDATE_DUPLICATE = 0.15
 # size: large, dim, shaded or blurred tags): ~40 % of the cost of 20 and 33 px at full
 # size; its corners are scaled back and refined on the full image like the others.
 THRESHOLD_WINDOWS = ((3, 3, 10, 1.0, None), (7, 7, 10, 1.0, 0.1), (11, 19, 8, 0.6, None))
-# Accepted markers of two window sets with the same id and centres this close are one.
+# CPU time (ms) per frame the blurred-code decoding (face search and tracking) may take:
+# several quads of DICT_4X4_50 (~4 ms each); none of DICT_APRILTAG_36h11 (~34 ms each,
+# expected ~38 ms before the first is measured: 0.35 s on a 320x240 photo unbudgeted).
+FACE_SEARCH_BUDGET_MS = 30.0
+# Accepted markers of two window sets with the same id and centres this close are one
+# (before refinement, to refine it once); contours further apart that the edge fit moves
+# onto the same tag are merged after it (``unique_detections`` in ``_finish``).
 DUPLICATE_PX = 3.0
 
 
@@ -202,10 +228,13 @@ class TagDetector:
     def __init__(self, camera_matrix, dist_coeffs=None, dictionary='DICT_4X4_50',
                  marker_size: float = 0.08, refine_corners: bool = True,
                  second_pass: bool = True, corner_sigma_px: float = 0.08,
-                 max_reprojection_error: float = 2.0, min_side_px: float = 6.0,
+                 max_reprojection_error: float = 2.0,
+                 max_reprojection_fraction: float = MAX_REPROJECTION_FRACTION,
+                 min_side_px: float = 6.0,
                  ambiguity_ratio: float = 0.7, camera_frame: str = '',
                  image_size=None, cube_size: float | None = 0.10, face_search: bool = True,
-                 blur_decode: bool = True):
+                 blur_decode: bool = True,
+                 face_search_budget_ms: float = FACE_SEARCH_BUDGET_MS):
         if not (np.isfinite(marker_size) and marker_size > 0):
             raise ValueError(f'marker_size must be > 0 m, got {marker_size}')
         if not (np.isfinite(corner_sigma_px) and corner_sigma_px > 0):
@@ -213,6 +242,9 @@ class TagDetector:
         if not max_reprojection_error > 0:
             raise ValueError(f'max_reprojection_error must be > 0 px, got '
                              f'{max_reprojection_error}')
+        if not (np.isfinite(max_reprojection_fraction) and 0 <= max_reprojection_fraction < 1):
+            raise ValueError(f'max_reprojection_fraction must be in [0, 1) of the tag side, '
+                             f'got {max_reprojection_fraction}')
         self.dictionary_name = dictionary_name(dictionary)
         self.dictionary = cv2.aruco.getPredefinedDictionary(dictionary_id(dictionary))
         self.marker_size = float(marker_size)
@@ -220,6 +252,7 @@ class TagDetector:
         self.second_pass = bool(second_pass)
         self.corner_sigma_px = float(corner_sigma_px)
         self.max_reprojection_error = float(max_reprojection_error)
+        self.max_reprojection_fraction = float(max_reprojection_fraction)
         self.min_side_px = float(min_side_px)
         self.ambiguity_ratio = float(ambiguity_ratio)
         # '': the camera optical frame of the default robot profile (the uBot-6's).
@@ -242,6 +275,10 @@ class TagDetector:
         # Face search (module face_search): needs the cube geometry.
         self.face_search = bool(face_search) and self.cube_size > 0
         self.blur_decode = bool(blur_decode)
+        if not (np.isfinite(face_search_budget_ms) and face_search_budget_ms >= 0):
+            raise ValueError(f'face_search_budget_ms must be >= 0 ms, got '
+                             f'{face_search_budget_ms}')
+        self.face_search_budget_ms = float(face_search_budget_ms)
         self.screen_candidates = True
         self.set_camera(camera_matrix, dist_coeffs, image_size)
 
@@ -358,7 +395,11 @@ class TagDetector:
             cand = self._candidates(gray, rejected, quads)
         if self.refine_corners and (len(tag_ids) or len(cand)):
             # One batch for the accepted markers and the second-pass candidates.
-            refined, ok = refine_quads(gray, np.concatenate([quads, cand]))
+            unrefined = np.concatenate([quads, cand])
+            refined, ok = refine_quads(gray, unrefined)
+            # Kept only where they sit on the marker's edges at the corners no worse than
+            # the contour's (curved edges of large tags: ``keep_better_corners``).
+            refined, _ = keep_better_corners(gray, refined, unrefined)
             quads = refined[:len(tag_ids)]
             # Where the edge fit fails (blurred edges), the contour corners themselves
             # are decoded (refine_quads keeps them): on the realistic suite they read
@@ -371,9 +412,11 @@ class TagDetector:
             if recovered:
                 quads = np.concatenate([quads, extra_quads])
                 tag_ids += extra_ids
+        budget = self.decode_budget()
         detections, dropped, on_faces, cubes = self._finish(
-            gray, [(tag_id, quad, 'aruco') for tag_id, quad in zip(tag_ids, quads)])
-        return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces))
+            gray, [(tag_id, quad, 'aruco') for tag_id, quad in zip(tag_ids, quads)], budget)
+        return DetectionResult(detections, dropped, recovered, cubes, roi, len(on_faces),
+                               decode_skipped=budget.skipped)
 
     def track(self, gray, previous, roi=None, previous_gray=None):
         """Find the tags of `previous` (the last frame's detections) again where they were,
@@ -402,16 +445,21 @@ class TagDetector:
                     f'previous_gray is {previous_gray.shape[1]}x{previous_gray.shape[0]} px, '
                     f'the image {gray.shape[1]}x{gray.shape[0]} px: the flow needs one size')
             quads = flow_quads(previous_gray, gray, quads)
-        found = reread_quads(gray, quads, ids, self.dictionary, self.blur_decode)
+        budget = self.decode_budget()
+        found = reread_quads(gray, quads, ids, self.dictionary, self.blur_decode, budget)
         # The face search also finds faces that came into view next to the tags (a cube
         # turned by an action) and last frame's face-search tags, from their neighbours.
         detections, dropped, on_faces, cubes = self._finish(
-            gray, [(ids[k], found[k], previous[k].source) for k in sorted(found)])
+            gray, [(ids[k], found[k], previous[k].source) for k in sorted(found)], budget)
         tracked = len(detections) - len(on_faces)
         return DetectionResult(detections, dropped, 0, cubes, roi, len(on_faces),
-                               tracked), lost_tags(previous, detections)
+                               tracked, budget.skipped), lost_tags(previous, detections)
 
-    def _finish(self, gray, read):
+    def decode_budget(self) -> DecodeBudget:
+        """A new frame's budget for blurred-code decoding (``face_search_budget_ms``)."""
+        return DecodeBudget(1e-3 * self.face_search_budget_ms)
+
+    def _finish(self, gray, read, budget=None):
         """How ``detect`` and ``track`` end: poses of the tags read [(tag_id, quad,
         source)] (steps 4-5; those dropped apart), the face search from them and the
         rigid-cube fit. Returns (detections, dropped, the face search's share of
@@ -421,8 +469,11 @@ class TagDetector:
         for tag_id, quad, source in read:
             det = pose_model.pose(tag_id, quad, source)
             (dropped if isinstance(det, DroppedDetection) else detections).append(det)
+        # After refinement: two windows' contours of one tag refined onto its edges.
+        detections, twins = unique_detections(detections)
+        dropped += twins
         on_faces = search_faces(gray, detections, pose_model, self.dictionary, self.cube_size,
-                                self.blur_decode) if self.face_search else []
+                                self.blur_decode, budget) if self.face_search else []
         detections += on_faces
         cubes = self._rigid_cubes(detections) if self.cube_size else []
         return detections, dropped, on_faces, cubes
@@ -433,7 +484,8 @@ class TagDetector:
         cubes, rigid = fit_cubes(detections, [d.candidates for d in detections],
                                  self.camera_matrix, self.dist_coeffs, self.cube_size,
                                  self.object_points, self.max_reprojection_error,
-                                 self.corner_sigma_px, SMALL_TAG_PX2)
+                                 self.corner_sigma_px, SMALL_TAG_PX2,
+                                 self.max_reprojection_fraction)
         for i, (pose, cov, rms, k) in rigid.items():
             det = detections[i]
             detections[i] = replace(
@@ -500,7 +552,8 @@ class TagDetector:
         return TagPoseModel(self.camera_matrix, self.dist_coeffs, self.focal_px,
                             self.marker_size, self.object_points, self.corner_sigma_px,
                             self.max_reprojection_error, self.min_side_px,
-                            self.ambiguity_ratio, self.camera_frame)
+                            self.ambiguity_ratio, self.camera_frame,
+                            self.max_reprojection_fraction)
 
     def _pose(self, tag_id, quad, source='aruco'):
         """``TagPoseModel.pose`` of one tag: a Detection or a DroppedDetection."""

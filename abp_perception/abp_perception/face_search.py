@@ -110,12 +110,14 @@ def adjacent_face_boxes(poses, found_centres, camera_matrix, dist_coeffs, cube_s
     return (boxes, px[inside, 4:]) if with_quads else boxes
 
 
-def search_faces(gray, detections, pose_model, dictionary, cube_size, blur_decode=True):
+def search_faces(gray, detections, pose_model, dictionary, cube_size, blur_decode=True,
+                 budget=None):
     """Detections on the cube faces (edge `cube_size`) next to found tags that should show
     a tag and hold none found (``adjacent_face_boxes`` from both IPPE poses of each tag):
     the predicted marker quads themselves, decoded (``_decode_predicted``) and given poses
     by `pose_model` (``tag_pose.TagPoseModel``); then once more from the tags this found
-    (a cube's third face)."""
+    (a cube's third face). `budget` (``blur_decode.DecodeBudget`` or None: unlimited)
+    bounds the blurred-code decoding's CPU time."""
     found, seeds = [], list(detections)
     for _ in range(FACE_SEARCH_ROUNDS):
         if not seeds:
@@ -124,7 +126,7 @@ def search_faces(gray, detections, pose_model, dictionary, cube_size, blur_decod
         if not len(boxes):
             break
         seeds = _decode_predicted(gray, quads, detections + found, pose_model, dictionary,
-                                  blur_decode)
+                                  blur_decode, budget)
         found += seeds
     return found
 
@@ -140,7 +142,8 @@ def _face_boxes(gray, seeds, detections, pose_model, cube_size):
     return boxes[keep], quads[keep]
 
 
-def _decode_predicted(gray, quads, detections, pose_model, dictionary, blur_decode):
+def _decode_predicted(gray, quads, detections, pose_model, dictionary, blur_decode,
+                      budget=None):
     """Detections at predicted marker quads (K, 4, 2): those dark inside against their
     quiet zone (``blur_decode.darkness``; no marker otherwise), one per place, refined
     and decoded by bits (``decode_quads``) or else, refined or as predicted, by
@@ -173,8 +176,8 @@ def _decode_predicted(gray, quads, detections, pose_model, dictionary, blur_deco
         tries = [refined[k] for k in left if ok[k]] + [quads[k] for k in left]
         owner = [k for k in left if ok[k]] + left
         done = set()
-        for k, quad, r in zip(owner, tries, decode_blurred(gray, np.array(tries),
-                                                           dictionary)):
+        for k, quad, r in zip(owner, tries, decode_blurred(gray, np.array(tries), dictionary,
+                                                           budget=budget)):
             if r is not None and k not in done:
                 done.add(k)
                 out.append((np.roll(quad, r[1], axis=0), r[0]))

@@ -105,8 +105,13 @@ DETECTOR_SPECS = (
               "profile's.", read_only=True),
     ParamSpec('corner_sigma_px', DOUBLE, 0.08, 'Base corner noise of the covariance model, px.',
               (0.001, 10.0)),
-    ParamSpec('max_reprojection_error', DOUBLE, 2.0, 'Drop poses with a larger RMS error, px.',
+    ParamSpec('max_reprojection_error', DOUBLE, 2.0, 'Drop poses with a larger RMS '
+              'reprojection error, px (tags up to max_reprojection_error / '
+              'max_reprojection_fraction px across; larger ones: the fraction).',
               (0.01, 100.0)),
+    ParamSpec('max_reprojection_fraction', DOUBLE, 0.04, 'The RMS reprojection gate of a '
+              'large tag as a fraction of its apparent side: max(max_reprojection_error, '
+              'this * side px); 0 = max_reprojection_error alone.', (0.0, 0.5)),
     ParamSpec('min_side_px', DOUBLE, 6.0, 'Drop tags smaller than this in the image, px.',
               (1.0, 1000.0)),
     ParamSpec('refine_corners', BOOL, True, 'Edge-fit sub-pixel corners (else OpenCV SUBPIX).'),
@@ -114,6 +119,10 @@ DETECTOR_SPECS = (
               'refining.'),
     ParamSpec('face_search', BOOL, True, 'Decode the tags predicted on the cube faces next '
               'to found tags, also when blurred (needs cube_size > 0; detector.TagDetector).'),
+    ParamSpec('face_search_budget_ms', DOUBLE, 30.0, 'CPU time per frame the face search '
+              'and tracking may spend decoding blurred tags by correlation: a quad is tried '
+              'only while its expected cost fits (~4 ms for DICT_4X4_50, ~34 ms for '
+              'DICT_APRILTAG_36h11); 0 = bit decoding only.', (0.0, 1000.0)),
     ParamSpec('full_frame_every', INT, 5, 'Search the whole image every this many frames '
               '(and after a frame without tags); in between only around the last tags '
               '(detector.RegionSearch). 1 = always the whole image.', (1, 10000)),
@@ -123,7 +132,8 @@ DETECTOR_SPECS = (
               '(detector.RegionSearch).'),
 )
 DETECTOR_PARAMETERS = ('marker_size', 'cube_size', 'corner_sigma_px', 'max_reprojection_error',
-                       'min_side_px', 'refine_corners', 'second_pass', 'face_search')
+                       'max_reprojection_fraction', 'min_side_px', 'refine_corners',
+                       'second_pass', 'face_search', 'face_search_budget_ms')
 
 MATCHER_SPECS = (
     ParamSpec('base_frame', STRING, '', 'Frame the detections must be in (robot base; its '

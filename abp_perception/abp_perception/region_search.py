@@ -177,10 +177,11 @@ def flow_quads(before, after, quads):
     return out
 
 
-def reread_quads(gray, quads, ids, dictionary, blur_decode=True) -> dict:
+def reread_quads(gray, quads, ids, dictionary, blur_decode=True, budget=None) -> dict:
     """{k: quad (4, 2) in ArUco order} of the tags `ids[k]` read again at `quads` (Q, 4, 2)
     of `gray`: refined by the edge fit and decoded by bits or else (`blur_decode`) by
-    blurred-code correlation; a quad counts only when it reads as its own id."""
+    blurred-code correlation (within `budget`, a ``blur_decode.DecodeBudget`` or None);
+    a quad counts only when it reads as its own id."""
     refined, ok = refine_quads(gray, quads)
     found = {}
     for k, res in enumerate(decode_quads(gray, refined, dictionary)):
@@ -189,7 +190,8 @@ def reread_quads(gray, quads, ids, dictionary, blur_decode=True) -> dict:
     unread = [k for k in range(len(ids)) if k not in found]
     if blur_decode and unread:
         # ArUco order is clockwise on screen, as decode_blurred wants it.
-        for k, res in zip(unread, decode_blurred(gray, refined[unread], dictionary)):
+        for k, res in zip(unread, decode_blurred(gray, refined[unread], dictionary,
+                                                 budget=budget)):
             if res is not None and res[0] == ids[k]:
                 found[k] = np.roll(refined[k], res[1], axis=0)
     return found

@@ -26,7 +26,8 @@ mirrored pose of one tag does not fit the others.
    placements are re-chosen under the refined pose and it is refined again if any
    changed. The seed whose refined pose has the lowest RMS reprojection error wins.
 5. **Check**: the fit is kept when every tag's own RMS error under it is at most
-   ``max_reprojection_error``; otherwise the worst tag is dropped and a group of >= 2
+   ``max_reprojection_error`` (or ``max_reprojection_fraction`` of its side, the
+   larger); otherwise the worst tag is dropped and a group of >= 2
    refitted (a stray tag linked by chance, or a tag from another cube).
 
 Each tag of a fitted cube then gets the pose the cube implies for it (``T_cube F_q``),
@@ -300,12 +301,14 @@ def _tag_covariance(cube_cov, cube_pose, placement):
 
 def fit_cubes(detections, candidates, camera_matrix, dist_coeffs, cube_size,
               object_points, max_reprojection_error=2.0, corner_sigma_px=0.08,
-              small_tag_px2=40.0):
+              small_tag_px2=40.0, max_reprojection_fraction=0.0):
     """Rigid cube poses of the groups of `detections` (camera frame) that fit.
 
     `candidates`: per detection, an (k, 4, 4) array of its single-tag pose solutions
-    (IPPE's two, best first). Returns (cubes, rigid) with `cubes` a list of CubePose and
-    `rigid` a dict detection index -> (pose, covariance, RMS px, cube index)."""
+    (IPPE's two, best first). A tag's RMS gate is the larger of `max_reprojection_error`
+    and `max_reprojection_fraction` of its side, as for its single-tag pose. Returns
+    (cubes, rigid) with `cubes` a list of CubePose and `rigid` a dict detection index ->
+    (pose, covariance, RMS px, cube index)."""
     cubes, rigid = [], {}
     if len(detections) < 2 or not cube_size or cube_size <= 0:
         return cubes, rigid
@@ -322,12 +325,14 @@ def fit_cubes(detections, candidates, camera_matrix, dist_coeffs, cube_size,
             if best is None:
                 break
             pose, placement, rms, total, hess = best
-            if rms.max() <= max_reprojection_error and len(set(placement)) == len(group):
+            limit = np.maximum(max_reprojection_error, max_reprojection_fraction * np.array(
+                [detections[i].side_px for i in group]))
+            if (rms <= limit).all() and len(set(placement)) == len(group):
                 break
             if len(group) == 2:
                 best = None
                 break
-            group.pop(int(np.argmax(rms)))
+            group.pop(int(np.argmax(rms / limit)))
         if best is None or len(group) < 2:
             continue
         pose, placement, rms, total, hess = best

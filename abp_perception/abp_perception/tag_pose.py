@@ -18,7 +18,11 @@ exceeds ``PNP_FALLBACK_PX`` (0.5 px), the pose is also solved with ``SOLVEPNP_SQ
 and ``SOLVEPNP_ITERATIVE`` (both right on such quads, and ~5-15x IPPE's cost) and the
 solution with the lowest reprojection error is used (``Detection.solver`` names it).
 
-Degenerate or implausible detections are dropped with a reason (``DroppedDetection``).
+Degenerate or implausible detections are dropped with a reason (``DroppedDetection``),
+among them poses whose RMS reprojection error exceeds ``reprojection_limit``: the larger
+of ``max_reprojection_error`` (px) and ``max_reprojection_fraction`` of the tag's side (a
+gate in pixels alone judges a 100 px tag like a 15 px one). ``unique_detections`` keeps
+one report per physical tag.
 
 Covariance model (6 x 6, order x, y, z, rot x, rot y, rot z, axes of the output frame;
 rotations as a small rotation vector). With ``f`` the focal length (px), ``s`` the
@@ -54,7 +58,9 @@ import numpy as np
 from .corners import quad_areas
 
 __all__ = ['Detection', 'DroppedDetection', 'DetectionResult', 'TagPoseModel',
-           'marker_object_points', 'normal_angle', 'pose_covariance', 'transform_covariance',
+           'marker_object_points', 'reprojection_limit', 'unique_detections',
+           'DUPLICATE_SIDE_FRACTION', 'MAX_REPROJECTION_FRACTION', 'normal_angle',
+           'pose_covariance', 'transform_covariance',
            'PARALLELOGRAM_PX', 'PNP_FALLBACK_PX', 'SMALL_TAG_PX2']
 
 _FULL_CONFIDENCE_SIDE_PX = 20.0
@@ -69,7 +75,46 @@ PNP_FALLBACK_PX = 0.5
 # A quad this close to a parallelogram (|q0 + q2 - q1 - q3|, px) is IPPE_SQUARE's
 # degenerate case (module docstring): the fallback solvers run too.
 PARALLELOGRAM_PX = 0.02
+# Detections of one id with centres closer than this fraction of the smaller side are
+# one tag (``unique_detections``): two tags of one id are >= 1 side + quiet zone apart.
+DUPLICATE_SIDE_FRACTION = 0.5
+# Default of the reprojection gate's share of the tag's side (``reprojection_limit``):
+# 2 px up to 50 px sides as before; 79-100 px tags near a wide-angle frame's edge have
+# 2.4-2.5 px RMS from the lens model's residual alone (issue 34).
+MAX_REPROJECTION_FRACTION = 0.04
 _PNP_FALLBACKS = (('sqpnp', cv2.SOLVEPNP_SQPNP), ('iterative', cv2.SOLVEPNP_ITERATIVE))
+
+
+def reprojection_limit(side_px, max_px, max_fraction=0.0):
+    """max(`max_px`, `max_fraction` * `side_px`): the RMS reprojection gate of a tag of
+    apparent side `side_px` (scalar or array)."""
+    return np.maximum(float(max_px), float(max_fraction) * np.asarray(side_px, np.float64))
+
+
+def unique_detections(detections):
+    """`detections` without a second report of one physical tag: of the detections of one
+    id whose centres are closer than ``DUPLICATE_SIDE_FRACTION`` of the smaller one's side
+    (two threshold windows' contours of one tag, refined onto the same edges), the one
+    with the lowest reprojection error is kept. Two tags of one id are kept apart: their
+    centres are at least a side plus a quiet zone apart. Returns (kept, dropped) with a
+    DroppedDetection naming the kept one for each duplicate; order kept."""
+    order = sorted(range(len(detections)), key=lambda i: detections[i].reprojection_error)
+    kept, dropped = [], []
+    for i in order:
+        det = detections[i]
+        centre = np.asarray(det.corners, dtype=np.float64).reshape(4, 2).mean(axis=0)
+        twin = next((k for k in kept if detections[k].tag_id == det.tag_id
+                     and np.linalg.norm(centre - np.asarray(detections[k].corners).reshape(
+                         4, 2).mean(axis=0)) < DUPLICATE_SIDE_FRACTION * min(
+                         det.side_px, detections[k].side_px)), None)
+        if twin is None:
+            kept.append(i)
+        else:
+            dropped.append(DroppedDetection(
+                det.tag_id, f'duplicate of the tag {det.tag_id} at '
+                f'{np.round(np.asarray(detections[twin].corners).mean(axis=0), 1).tolist()} '
+                'px (another contour of it)', det.corners))
+    return [detections[i] for i in sorted(kept)], dropped
 
 
 def marker_object_points(marker_size: float) -> np.ndarray:
@@ -153,6 +198,8 @@ class DetectionResult:
     roi: list = None               # [(x0, y0, x1, y1) px] searched; None: the whole image
     face_search: int = 0           # detections found on the found tags' cube faces
     tracked: int = 0               # detections found again where they were (TagDetector.track)
+    # Quads whose blurred-code decode the frame's budget left out (face_search_budget_ms).
+    decode_skipped: int = 0
 
     def in_frame(self, transform, frame: str) -> "DetectionResult":
         return replace(self, detections=[d.transformed(transform, frame)
@@ -212,6 +259,15 @@ class TagPoseModel:
     min_side_px: float
     ambiguity_ratio: float
     camera_frame: str   # URDF frame of the camera (TagDetector's camera_frame)
+    # The RMS gate grows with the tag: max(max_reprojection_error, this * side px).
+    max_reprojection_fraction: float = 0.0
+
+    def reprojection_limit(self, side_px):
+        """The largest RMS reprojection error (px) a tag of apparent side `side_px` may
+        have: ``max_reprojection_error`` for small tags, ``max_reprojection_fraction`` of
+        the side for large ones (a lens-model residual grows with the tag's size)."""
+        return reprojection_limit(side_px, self.max_reprojection_error,
+                                  self.max_reprojection_fraction)
 
     def pose(self, tag_id, quad, source='aruco'):
         """The Detection of tag `tag_id` at `quad` (4, 2) px (ArUco order), or a
@@ -246,10 +302,11 @@ class TagPoseModel:
             return DroppedDetection(tag_id, 'non-finite pose', quad)
         if tvec[2] <= 0:
             return DroppedDetection(tag_id, 'pose behind the camera', quad)
-        if rms > self.max_reprojection_error:
+        limit = self.reprojection_limit(side)
+        if rms > limit:
             return DroppedDetection(
-                tag_id, f'reprojection error {rms:.2f} px > {self.max_reprojection_error} px',
-                quad)
+                tag_id, f'reprojection error {rms:.2f} px > {limit:.2f} px (side '
+                f'{side:.0f} px)', quad)
         rot, _ = cv2.Rodrigues(rvec)
         ambiguity, angle = 0.0, 0.0
         if solver == 'ippe_square':

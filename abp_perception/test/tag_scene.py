@@ -38,7 +38,7 @@ def tag_pose(position, tilt_deg=0.0, tilt_axis=(0.0, 1.0, 0.0), roll_deg=0.0):
     return pose
 
 
-def render_tags(K, width, height, tags, marker_size, background=190):
+def render_tags(K, width, height, tags, marker_size, background=190, dictionary=DICTIONARY):
     """A grey image of tags [(tag_id, pose)] (poses tag -> camera, tag z out of the face),
     each with a one-cell white quiet zone, on a plain background."""
     s = SUPERSAMPLE
@@ -46,16 +46,18 @@ def render_tags(K, width, height, tags, marker_size, background=190):
     k_hi[:2] *= s
     k_hi[:2, 2] += 0.5 * (s - 1)                       # pixel centres of the fine grid
     hi = np.full((height * s, width * s), background, np.uint8)
-    cell_px, cells = 40, 6                              # 4 x 4 bits + black border
+    cells = cv2.aruco.getPredefinedDictionary(dictionary).markerSize + 2   # + black border
+    cell_px = 240 // cells
     side_px = cell_px * cells
-    src = cv2.copyMakeBorder(marker(0, side_px), cell_px, cell_px, cell_px, cell_px,
+    src = cv2.copyMakeBorder(marker(0, side_px, dictionary), cell_px, cell_px, cell_px, cell_px,
                              cv2.BORDER_CONSTANT, value=255)
     h = 0.5 * marker_size
     obj = np.array([[-h, h, 0.0], [h, h, 0.0], [h, -h, 0.0], [-h, -h, 0.0]])
     lo, hi_edge = cell_px - 0.5, cell_px + side_px - 0.5
     src_quad = np.float32([[lo, lo], [hi_edge, lo], [hi_edge, hi_edge], [lo, hi_edge]])
     for tag_id, pose in tags:
-        src[cell_px:cell_px + side_px, cell_px:cell_px + side_px] = marker(tag_id, side_px)
+        src[cell_px:cell_px + side_px, cell_px:cell_px + side_px] = marker(tag_id, side_px,
+                                                                          dictionary)
         rvec, _ = cv2.Rodrigues(pose[:3, :3])
         dst, _ = cv2.projectPoints(obj, rvec, pose[:3, 3], k_hi, None)
         warp = cv2.getPerspectiveTransform(src_quad, dst.reshape(4, 2).astype(np.float32))

@@ -248,12 +248,24 @@ def largest_cube_mm(paper: str) -> float:
     return np.floor(lo * 10) / 10
 
 
-def check_fits(cube_mm: float, tag_mm: float, paper: str):
+def check_sizes(cube_mm: float, tag_mm: float, paper: str):
     if paper not in PAPER_MM:
         raise ValueError(f'paper must be one of {", ".join(PAPER_MM)}, got {paper!r}')
     if not 0 < tag_mm < cube_mm:
         raise ValueError(f'the tag ({tag_mm:g} mm) must be smaller than the cube face '
                          f'({cube_mm:g} mm)')
+
+
+def dictionary_id(dictionary: str) -> int:
+    """OpenCV's id of an ArUco dictionary name like 'DICT_4X4_50' (ValueError if unknown)."""
+    if not hasattr(cv2.aruco, dictionary) or not dictionary.startswith('DICT_'):
+        raise ValueError(f'unknown ArUco dictionary {dictionary!r} (an OpenCV name like '
+                         'DICT_4X4_50)')
+    return getattr(cv2.aruco, dictionary)
+
+
+def check_fits(cube_mm: float, tag_mm: float, paper: str):
+    check_sizes(cube_mm, tag_mm, paper)
     x0, y0, x1, y1 = _net_extent(cube_mm)
     bw, bh = printable_box(paper)
     if x1 - x0 > bw or y1 - y0 > bh:
@@ -265,7 +277,8 @@ def check_fits(cube_mm: float, tag_mm: float, paper: str):
             f'title, scale bar): the largest cube that fits is {best:g} mm. Print a smaller '
             f'cube, e.g. --cube-size {best / 1000:g} --tag-size {ratio * best / 1000:.4g} '
             "(same tag-to-face ratio), and set the detector's cube_size and marker_size "
-            "(and the aspect matcher's cube_size) to the same values.")
+            "(and the aspect matcher's cube_size) to the same values; or print the six "
+            'faces on separate squares for a solid cube or box (--layout tiles).')
 
 
 def _tab_polygon(origin, cube_mm, depth, side) -> np.ndarray:
@@ -290,10 +303,7 @@ def cube_page(name: str, faces, mass_index: int, *, cube_mm: float, tag_mm: floa
               paper: str = 'a4', dictionary: str = 'DICT_4X4_50') -> CubePage:
     """The page of one model (NetDoesNotFit / ValueError with a clear message)."""
     check_fits(cube_mm, tag_mm, paper)
-    if not hasattr(cv2.aruco, dictionary) or not dictionary.startswith('DICT_'):
-        raise ValueError(f'unknown ArUco dictionary {dictionary!r} (an OpenCV name like '
-                         'DICT_4X4_50)')
-    dictionary_id = getattr(cv2.aruco, dictionary)
+    dictionary_number = dictionary_id(dictionary)
     squares = cross_squares()
     page_w, page_h = PAPER_MM[paper]
     x0, y0, x1, y1 = _net_extent(cube_mm)
@@ -308,7 +318,7 @@ def cube_page(name: str, faces, mass_index: int, *, cube_mm: float, tag_mm: floa
 
     placed = []
     for s in squares:
-        modules = np.rot90(marker_modules(dictionary_id, faces[s.face]), s.quarter_turns)
+        modules = np.rot90(marker_modules(dictionary_number, faces[s.face]), s.quarter_turns)
         placed.append(PlacedSquare(s.face, int(faces[s.face]), origin(s.cell), modules,
                                    s.quarter_turns))
     folds = [_side_segment(origin(cell), cube_mm, side) for cell, side in fold_lines(squares)]
@@ -355,21 +365,24 @@ def _notes(page: CubePage) -> list[str]:
         'away from you (print outside), glue each tab under the face whose tag it names. '
         'Thin card (160-250 g/m2) keeps the faces flat.',
     ]
-    if page.heavy_face is None:
-        notes.append(f'Uniform mass ({MASS_NAMES[0]}): leave the cube empty, or put a weight '
-                     'at its very centre.')
-    else:
-        f = page.heavy_face
-        notes.append(
-            f'Eccentric mass ({MASS_NAMES[page.mass_index]}): before closing the cube, tape a '
-            f'weight flat against the inside of the face marked W ({FACE_NAMES[f]}, tag '
-            f'{page.faces[f]}), centred')
-        notes.append(
-            'on it: the heavier the better, at least several times the paper cube '
-            '(the simulated cube: 62 % of its mass in a slab against that face).')
-    return notes
+    return notes + weight_notes(page.faces, page.mass_index, 'cube')
+
+
+def weight_notes(faces, mass_index: int, thing: str) -> list[str]:
+    """Where the weight goes in a `thing` ('cube', 'box') of this mass variant."""
+    if mass_index == 0:
+        return [f'Uniform mass ({MASS_NAMES[0]}): leave the {thing} empty, or put a weight '
+                'at its very centre.']
+    f = mass_index - 1
+    return [
+        f'Eccentric mass ({MASS_NAMES[mass_index]}): before closing the {thing}, tape a '
+        f'weight flat against the inside of the face marked W ({FACE_NAMES[f]}, tag '
+        f'{faces[f]}), centred',
+        f'on it: the heavier the better, at least several times the empty {thing} '
+        '(the simulated cube: 62 % of its mass in a slab against that face).']
 
 
 __all__ = ['CROSS_CELLS', 'CubePage', 'NetDoesNotFit', 'PAPER_MM', 'SCALE_BAR_MM', 'Square',
-           'Tab', 'check_fits', 'cross_squares', 'cube_page', 'fold_lines', 'glue_tabs',
-           'largest_cube_mm', 'marker_modules', 'parse_model_name']
+           'Tab', 'check_fits', 'check_sizes', 'cross_squares', 'cube_page', 'dictionary_id',
+           'fold_lines', 'glue_tabs', 'largest_cube_mm', 'marker_modules', 'parse_model_name',
+           'printable_box', 'weight_notes']

@@ -1,5 +1,5 @@
-"""`make_cubes`: printable ARcube nets (one PDF and one 300 dpi PNG per model) and the
-ChArUco board that `calibrate_camera` reads.
+"""`make_cubes`: printable ARcubes (a one-page net, or the faces as tiles on several
+sheets; a PDF and 300 dpi PNGs per model) and the ChArUco board that `calibrate_camera` reads.
 
     make_cubes c0-4-1-2-3-6/u c0-1-2-4-5-3/m+y --out cubes/ --cube-size 0.05 --tag-size 0.04
     make_cubes --model-set robot --out cubes/ --cube-size 0.05 --tag-size 0.04
@@ -10,8 +10,12 @@ m+x ... m-z for a cube heavy towards that face). --model-set takes the model-set
 parameters the nodes take (model_set, model_set_size, n_tags, seed, model_file).
 The cube and tag sizes default to the tag detector's cube_size and marker_size, and the
 dictionary to its dictionary: print at the sizes the detector is configured for, or set
-the detector (and the aspect matcher's cube_size) to the sizes you print. A net that does
-not fit on the sheet is refused, with the largest cube that fits.
+the detector (and the aspect matcher's cube_size) to the sizes you print.
+--layout: a one-piece net to fold (net), or the six faces as separate squares, as many per
+sheet as fit, to glue on a solid cube or box of that size, each edge labelled with the
+face it meets (tiles: one multi-page PDF, <name>_page<k>.png per page). The default (auto)
+prints the net when it fits on the sheet, else tiles; --layout net refuses a net that does
+not fit, naming the largest cube that does. The default 10 cm cube tiles on 3 A4 sheets.
 Pages: see docs/PRINTED_CUBES.md.
 """
 
@@ -25,16 +29,18 @@ from abp_belief import model_file, population
 from abp_perception.charuco_calibration import BoardSpec
 from abp_perception.node_parameters import DETECTOR_SPECS
 
-from . import cube_net, printable_pages
+from . import cube_net, cube_tiles, printable_pages
 
 _DETECTOR_DEFAULTS = {spec.name: spec.default for spec in DETECTOR_SPECS}
 BOARD_PX_PER_MM = 2.0          # the default board's squares and modules are whole pixels
+LAYOUTS = ('auto', 'net', 'tiles')
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog='make_cubes', description='Printable ARcube nets (PDF + 300 dpi PNG per model) '
-        'and the ChArUco calibration board.',
+        prog='make_cubes', description='Printable ARcubes (PDF + 300 dpi PNGs per model): a '
+        'net to fold, or the six faces as tiles for a solid cube or box (--layout); and the '
+        'ChArUco calibration board.',
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
     parser.add_argument('models', nargs='*', metavar='MODEL',
                         help='model names, e.g. c0-4-1-2-3-6/u c0-1-2-4-5-3/m+y')
@@ -58,6 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument('--seed', type=int, default=0, help='seed of --model-set (default 0)')
     parser.add_argument('--model-file', default='', metavar='FILE',
                         help='every model of a model-set file (`models --out`, `learn_atg`)')
+    parser.add_argument('--layout', choices=LAYOUTS, default='auto',
+                        help='net: one-piece net to fold (refused if it does not fit the '
+                        'sheet); tiles: the six faces as separate squares, as many per sheet '
+                        'as fit, to glue on a solid cube or box, each edge labelled with the '
+                        'face it meets; auto (default): the net if it fits, else tiles')
     parser.add_argument('--charuco', action='store_true',
                         help=f'also print the calibration board ({BoardSpec().describe()})')
     return parser
@@ -105,6 +116,18 @@ def board_page(spec: BoardSpec, paper: str):
                                            'ChArUco calibration board', notes)
 
 
+def _layout(layout: str, name, faces, mass, **sizes):
+    """A model's net (a CubePage) or its tile sheets (a list of TilePage)."""
+    if layout == 'auto':
+        try:
+            return cube_net.cube_page(name, faces, mass, **sizes)
+        except cube_net.NetDoesNotFit:
+            layout = 'tiles'
+    if layout == 'tiles':
+        return cube_tiles.tile_pages(name, faces, mass, **sizes)
+    return cube_net.cube_page(name, faces, mass, **sizes)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     try:
@@ -119,8 +142,8 @@ def main(argv=None) -> int:
     try:
         models = _models(args)
         # Every page is laid out before any is written: a refusal leaves no files behind.
-        pages = [cube_net.cube_page(name, faces, mass, cube_mm=cube_mm, tag_mm=tag_mm,
-                                    paper=args.paper, dictionary=args.dictionary)
+        pages = [_layout(args.layout, name, faces, mass, cube_mm=cube_mm, tag_mm=tag_mm,
+                         paper=args.paper, dictionary=args.dictionary)
                  for name, faces, mass in models]
     except cube_net.NetDoesNotFit as exc:
         return _error(parser, str(exc), status=1)
@@ -129,6 +152,13 @@ def main(argv=None) -> int:
     try:
         os.makedirs(args.out, exist_ok=True)
         for page in pages:
+            if isinstance(page, list):                # a model's tile sheets
+                pdf, pngs = printable_pages.save_pages(
+                    [printable_pages.draw_tile_page(p) for p in page],
+                    os.path.join(args.out, file_stem(page[0].name)))
+                print(f'{page[0].name}: {pdf} {" ".join(pngs)} (faces on {len(pngs)} '
+                      f'sheet{"s" if len(pngs) > 1 else ""}, to glue on a solid cube or box)')
+                continue
             pdf, png = printable_pages.save_page(
                 printable_pages.draw_cube_page(page), os.path.join(args.out, file_stem(page.name)))
             print(f'{page.name}: {pdf} {png}')

@@ -1,5 +1,7 @@
 """Drawing the printable pages (matplotlib): an ARcube net (`cube_net.CubePage`) or the
-ChArUco calibration board, each saved as a one-page PDF and a 300 dpi PNG of the sheet.
+ChArUco calibration board, each saved as a one-page PDF and a 300 dpi PNG of the sheet,
+or a cube's faces as separate tiles (`cube_tiles.TilePage`), saved as one multi-page PDF
+and a PNG per page.
 
 The figure is the sheet itself (no tight bounding box, no axes margins), with data
 coordinates in millimetres, so 1 mm on paper is 1 mm in the PDF and 300/25.4 pixels in
@@ -17,10 +19,12 @@ matplotlib.use('Agg')  # files only; never a window
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
 from matplotlib.patches import PathPatch, Polygon, Rectangle  # noqa: E402
 from matplotlib.path import Path  # noqa: E402
 
 from .cube_net import MARGIN_MM, SCALE_BAR_MM, CubePage  # noqa: E402
+from .cube_tiles import TilePage, edge_label, face_label  # noqa: E402
 
 PNG_DPI = 300
 MM_PER_INCH = 25.4
@@ -93,7 +97,6 @@ def _segments(ax, segments, style):
 def draw_cube_page(page: CubePage):
     """The matplotlib figure of one cube's sheet (caller saves and closes it)."""
     fig, ax = _sheet(page.size_mm)
-    w, h = page.size_mm
     for poly, label, centre, angle in page.tabs:
         ax.add_patch(Polygon(poly, closed=True, facecolor='0.92', edgecolor='none'))
         ax.text(*centre, label, ha='center', va='center', rotation=angle, fontsize=5.5,
@@ -109,21 +112,88 @@ def draw_cube_page(page: CubePage):
         ax.text(x + margin / 2, y + margin / 2, str(sq.tag_id), ha='center', va='center',
                 fontsize=min(6.0, 0.45 * margin / PT_MM), color='0.45')
     if page.weight_mark is not None:
-        r = min(0.35 * margin, 3.0)
-        ax.add_patch(plt.Circle(page.weight_mark, r, facecolor='0.5', edgecolor='none'))
-        ax.text(*page.weight_mark, 'W', ha='center', va='center', fontsize=1.1 * r / PT_MM,
-                color='white', fontweight='bold')
-    top = h - MARGIN_MM
-    ax.text(MARGIN_MM, top, f'ARcube {page.name}', ha='left', va='top', fontsize=14,
-            fontweight='bold')
-    ax.text(w - MARGIN_MM, top, f'cube {page.cube_mm:g} mm, tag {page.tag_mm:g} mm\n'
-            f'{page.dictionary}, {page.paper.upper()}', ha='right', va='top', fontsize=8,
-            linespacing=1.3)
+        _weight_mark(ax, page.weight_mark, margin)
+    _title(ax, page, f'ARcube {page.name}')
     bar_x, bar_y = page.scale_bar
     draw_scale_bar(ax, bar_x, bar_y)
     ax.text(MARGIN_MM, bar_y - 3.0, '\n'.join(page.notes), ha='left', va='top', fontsize=6.5,
             linespacing=1.35)
     return fig
+
+
+def _title(ax, page, title: str):
+    w, h = page.size_mm
+    top = h - MARGIN_MM
+    ax.text(MARGIN_MM, top, title, ha='left', va='top', fontsize=14, fontweight='bold')
+    ax.text(w - MARGIN_MM, top, f'cube {page.cube_mm:g} mm, tag {page.tag_mm:g} mm\n'
+            f'{page.dictionary}, {page.paper.upper()}', ha='right', va='top', fontsize=8,
+            linespacing=1.3)
+
+
+def _weight_mark(ax, centre, margin):
+    r = min(0.35 * margin, 3.0)
+    ax.add_patch(plt.Circle(centre, r, facecolor='0.5', edgecolor='none'))
+    ax.text(*centre, 'W', ha='center', va='center', fontsize=1.1 * r / PT_MM, color='white',
+            fontweight='bold')
+
+
+# Where each side's label sits (fraction of the border from the edge) and how it is turned.
+_EDGE_TEXT = {'up': ((0.5, 1.0), (0.0, -1.0), 0.0), 'down': ((0.5, 0.0), (0.0, 1.0), 0.0),
+              'left': ((0.0, 0.5), (1.0, 0.0), 90.0), 'right': ((1.0, 0.5), (-1.0, 0.0), -90.0)}
+
+
+def draw_tile_page(page: TilePage):
+    """The matplotlib figure of one sheet of tiles (caller saves and closes it): each face
+    square outlined (cut line) with its tag, its face label in the border's bottom-left
+    corner and, in the middle of each side's border, the face it meets there."""
+    fig, ax = _sheet(page.size_mm)
+    e = page.cube_mm
+    margin = (e - page.tag_mm) / 2
+    size = min(6.0, 0.45 * margin / PT_MM)
+    for tile in page.tiles:
+        x, y = tile.origin
+        ax.add_patch(Rectangle((x, y), e, e, facecolor='none', edgecolor='black',
+                               linewidth=0.6))
+        module = page.tag_mm / tile.modules.shape[0]
+        _draw_black(ax, tile.modules, (x + margin, y + margin), module)
+        # Labels in the border's outer part, small and grey: people read them, the
+        # detector ignores them (they stay clear of the tag's quiet zone).
+        ax.text(x + 0.3 * margin, y + 0.4 * margin, face_label(tile.face, tile.tag_id),
+                ha='left', va='center', fontsize=size, color='0.3', fontweight='bold')
+        for side, other in tile.meets.items():
+            (fx, fy), (ix, iy), angle = _EDGE_TEXT[side]
+            ax.text(x + fx * e + ix * 0.4 * margin, y + fy * e + iy * 0.4 * margin,
+                    edge_label(other, page.faces[other]), ha='center', va='center',
+                    rotation=angle, fontsize=size, color='0.45')
+    if page.weight_mark is not None:
+        _weight_mark(ax, page.weight_mark, margin)
+    _title(ax, page, f'ARcube {page.name}, faces page {page.number}/{page.page_count}')
+    bar_x, bar_y = page.scale_bar
+    draw_scale_bar(ax, bar_x, bar_y)
+    ax.text(MARGIN_MM, bar_y - 3.0, '\n'.join(page.notes), ha='left', va='top', fontsize=6.5,
+            linespacing=1.35)
+    return fig
+
+
+def save_pages(figs, stem: str) -> tuple[str, list[str]]:
+    """Save `figs` as one multi-page `stem`.pdf and `stem`_page<k>.png (PNG_DPI), closing
+    each; returns the paths."""
+    pdf, pngs = stem + '.pdf', []
+    tmp = pdf + '.part'
+    try:
+        with PdfPages(tmp, metadata={'Creator': 'abp make_cubes'}) as document:
+            for k, fig in enumerate(figs, start=1):
+                document.savefig(fig)
+                png = f'{stem}_page{k}.png'
+                fig.savefig(png + '.part', format='png', dpi=PNG_DPI,
+                            pil_kwargs={'compress_level': 1})
+                os.replace(png + '.part', png)
+                pngs.append(png)
+    finally:
+        for fig in figs:
+            plt.close(fig)
+    os.replace(tmp, pdf)
+    return pdf, pngs
 
 
 def save_page(fig, stem: str) -> tuple[str, str]:

@@ -4,6 +4,9 @@ folded along its fold lines is the model's cube with every tag turned as the sim
 renderers draw it; the PDF is one page of the right size; the scale bar is 10 cm. Every
 page of the robot set has the same net (cube_net.cross_squares) with its own tags: each
 page's layout places the model's tags on the squares, turned as on the printed pages.
+Tiles (the faces as separate squares, the default when the net does not fit): every id
+is found on the sheets, each tag turned as on the net's page, and each edge's label names
+the face the model's cube has across that edge.
 
 In-process: make_cubes.main writes the files, the round-trip checks read only the files.
 """
@@ -13,12 +16,13 @@ import struct
 import zlib
 
 import cv2
+import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
 from abp_belief import population
-from abp_belief.cube import OPPOSITE_FACE
-from abp_bench import cube_net, make_cubes
+from abp_belief.cube import FACE_NAMES, FACE_NORMALS, OPPOSITE_FACE
+from abp_bench import cube_net, cube_tiles, make_cubes, printable_pages
 from abp_sim_bridge.flat_renderer import FACE_TAG_AXES
 
 CUBE_M, TAG_M = 0.05, 0.04        # the 10 cm default does not fit on one sheet (test below)
@@ -155,13 +159,8 @@ def _png_dpi(path):
     return x * 0.0254, y * 0.0254
 
 
-def test_scale_bar_and_files(robot_pages):
-    name = 'c0-1-2-4-5-3/m+y'
-    stem = robot_pages / make_cubes.file_stem(name)
-    assert _png_dpi(stem.with_suffix('.png')) == pytest.approx((DPI, DPI), abs=0.01)
-    image = cv2.imread(str(stem.with_suffix('.png')), cv2.IMREAD_GRAYSCALE)
-    page = cube_net.cube_page(name, *cube_net.parse_model_name(name), cube_mm=CUBE_M * 1000,
-                              tag_mm=TAG_M * 1000)
+def _bar_px(image, page):
+    """Length in pixels of the scale bar drawn at page.scale_bar."""
     x0, y0 = page.scale_bar
     row = int(round((page.size_mm[1] - (y0 + 0.75)) * PX_PER_MM))
     dark = image[row] < 128
@@ -171,7 +170,17 @@ def test_scale_bar_and_files(robot_pages):
         left -= 1
     while dark[right + 1]:
         right += 1
-    assert abs((right - left + 1) - 100 * PX_PER_MM) <= 1.5     # 1181 px = 10 cm at 300 dpi
+    return right - left + 1
+
+
+def test_scale_bar_and_files(robot_pages):
+    name = 'c0-1-2-4-5-3/m+y'
+    stem = robot_pages / make_cubes.file_stem(name)
+    assert _png_dpi(stem.with_suffix('.png')) == pytest.approx((DPI, DPI), abs=0.01)
+    image = cv2.imread(str(stem.with_suffix('.png')), cv2.IMREAD_GRAYSCALE)
+    page = cube_net.cube_page(name, *cube_net.parse_model_name(name), cube_mm=CUBE_M * 1000,
+                              tag_mm=TAG_M * 1000)
+    assert abs(_bar_px(image, page) - 100 * PX_PER_MM) <= 1.5    # 1181 px = 10 cm at 300 dpi
     # The weight mark (a grey disc, white W) sits in the heavy face's square, on the paper.
     heavy = next(s for s in page.squares if s.face == page.heavy_face)
     mx, my = page.weight_mark
@@ -185,12 +194,15 @@ def test_scale_bar_and_files(robot_pages):
     _check_pdf(pdf, (210, 297))
 
 
-def _check_pdf(pdf: bytes, size_mm):
+def _check_pdf(pdf: bytes, size_mm, pages=1):
     assert pdf.startswith(b'%PDF-') and pdf.rstrip().endswith(b'%%EOF')
-    assert len(re.findall(rb'/Type\s*/Page\b', pdf)) == 1
-    box = [float(v) for v in re.search(rb'/MediaBox\s*\[([^\]]*)\]', pdf).group(1).split()]
-    assert box[:2] == [0, 0]
-    assert box[2:] == pytest.approx([s / 25.4 * 72 for s in size_mm], abs=0.01)
+    assert len(re.findall(rb'/Type\s*/Page\b', pdf)) == pages
+    boxes = re.findall(rb'/MediaBox\s*\[([^\]]*)\]', pdf)
+    assert len(boxes) == pages
+    for found in boxes:
+        box = [float(v) for v in found.split()]
+        assert box[:2] == [0, 0]
+        assert box[2:] == pytest.approx([s / 25.4 * 72 for s in size_mm], abs=0.01)
     # Every stream inflates (a truncated file would not).
     for m in re.finditer(rb'/FlateDecode.*?stream\r?\n', pdf, re.S):
         zlib.decompressobj().decompress(pdf[m.end():m.end() + 200])
@@ -213,10 +225,16 @@ def test_letter_paper_and_the_charuco_board(robot_pages, tmp_path):
 
 def test_refusals_write_nothing(tmp_path, capsys):
     out = tmp_path / 'none'
-    # The detector's default 10 cm cube: its net is 30 x 41 cm.
-    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(out)]) == 1
+    # The detector's default 10 cm cube: its net is 30 x 41 cm (auto prints tiles instead).
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(out), '--layout', 'net']) == 1
     err = capsys.readouterr().err
     assert 'A4 leaves' in err and 'largest cube that fits is' in err and 'cube_size' in err
+    assert '--layout tiles' in err
+    assert not out.exists()
+    # A face larger than the printable part of the sheet does not tile either.
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(out), '--cube-size', '0.25',
+                            '--tag-size', '0.2']) == 1
+    assert 'one face of a 250 mm cube does not fit on A4' in capsys.readouterr().err
     assert not out.exists()
     for bad in (['c0-4-1-2-3/u'], ['c0-4-1-2-3-6/m+w'], ['c0-4-1-2-3-3/u'], []):
         assert make_cubes.main([*bad, '--out', str(out), '--cube-size', '0.05',
@@ -239,3 +257,140 @@ def test_fold_geometry_matches_the_belief_cube():
     edges = {frozenset((face_at[t.cell], t.under_face)) for t in tabs}
     assert len(edges) == 7
     assert all(OPPOSITE_FACE[a] != b for a, b in map(tuple, edges))
+
+
+# --- Tiles: the six faces as separate squares (--layout tiles; auto when the net does not
+# fit). At the detector's default sizes (10 cm cube, 8 cm tag), two faces per A4 sheet.
+TILED = ['c0-1-2-4-5-3/m+y', 'c0-4-1-2-3-6/u']
+SIDE_DIRECTIONS = {'right': (1, 0), 'up': (0, 1), 'left': (-1, 0), 'down': (0, -1)}
+
+
+@pytest.fixture(scope='module')
+def tiled_pages(tmp_path_factory):
+    out = tmp_path_factory.mktemp('tiles')
+    assert make_cubes.main([*TILED, '--out', str(out)]) == 0       # defaults: no --layout
+    return out
+
+
+def _quarter_turns(right_on_paper) -> int:
+    """Quarter turns (anticlockwise) that bring the tag image's right onto this paper axis."""
+    return [(1, 0), (0, 1), (-1, 0), (0, -1)].index(tuple(int(v) for v in right_on_paper[:2]))
+
+
+def _printed_tags(image, size_mm):
+    """{tag id: (centre mm, paper right, paper up)} of the tags detected on a page image."""
+    ids, corners = detect(image)
+    tags = {}
+    for tag, quad in zip(ids, corners):
+        tl, tr, _, bl = quad.reshape(4, 2)
+        cx, cy = quad.reshape(4, 2).mean(axis=0)
+        centre = (cx / PX_PER_MM, size_mm[1] - cy / PX_PER_MM)
+        assert tag not in tags, f'tag {tag} twice on one page'
+        tags[tag] = (centre, _snap((tr - tl) * [1, -1]), _snap((tl - bl) * [1, -1]))
+    return tags
+
+
+def _drawn_labels(page):
+    """(text, position mm, rotation deg) of every text drawn on a tile page's figure (the
+    figure make_cubes saves as that page)."""
+    fig = printable_pages.draw_tile_page(page)
+    try:
+        return [(t.get_text(), t.get_position(), t.get_rotation() % 360)
+                for t in fig.axes[0].texts]
+    finally:
+        plt.close(fig)
+
+
+def test_tiled_pages_detect_every_tag_with_its_neighbours(tiled_pages, robot_pages):
+    # The rotation of each body face's tag in the one-piece net, read back from its page.
+    net_name = PRINTED[0]
+    net_faces = list(cube_net.parse_model_name(net_name)[0])
+    net_image = cv2.imread(str(robot_pages / f'{make_cubes.file_stem(net_name)}.png'),
+                           cv2.IMREAD_GRAYSCALE)
+    net_turns = {net_faces.index(tag): _quarter_turns(right) for tag, (_, right, _) in
+                 _printed_tags(net_image, (210, 297)).items()}
+    assert sorted(net_turns) == list(range(6))
+    for name in TILED:
+        faces, mass = cube_net.parse_model_name(name)
+        faces = list(faces)
+        stem = tiled_pages / make_cubes.file_stem(name)
+        _check_pdf(stem.with_suffix('.pdf').read_bytes(), (210, 297), pages=3)
+        layout = cube_tiles.tile_pages(name, faces, mass, cube_mm=100.0, tag_mm=80.0)
+        assert len(layout) == 3 and [len(p.tiles) for p in layout] == [2, 2, 2]
+        found = {}
+        for k, page in enumerate(layout, start=1):
+            png = tiled_pages / f'{make_cubes.file_stem(name)}_page{k}.png'
+            assert _png_dpi(png) == pytest.approx((DPI, DPI), abs=0.01)
+            image = cv2.imread(str(png), cv2.IMREAD_GRAYSCALE)
+            assert abs(image.shape[1] - 210 * PX_PER_MM) < 1.5
+            assert abs(image.shape[0] - 297 * PX_PER_MM) < 1.5
+            assert abs(_bar_px(image, page) - 100 * PX_PER_MM) <= 1.5, f'{name} page {k}'
+            tags = _printed_tags(image, page.size_mm)
+            assert not set(tags) & set(found), f'{name}: a tag on two pages'
+            found.update(tags)
+            labels = _drawn_labels(page)
+            for tag, (centre, right, up) in tags.items():
+                face = faces.index(tag)
+                # The tag sits centred on its tile, turned as in the one-piece net.
+                tile = next(t for t in page.tiles if t.tag_id == tag)
+                assert np.allclose(centre, np.add(tile.origin, 50.0), atol=0.5), (name, tag)
+                assert _quarter_turns(right) == net_turns[face], f'{name}: tag {tag} turned'
+                # Every edge's label names the face across it on the model's cube: the
+                # paper direction of that edge, carried onto the body by the detected tag's
+                # right and up (the renderers' tag axes on this face).
+                x0, y0 = tile.origin
+                inside = [(text, pos, rot) for text, pos, rot in labels
+                          if x0 < pos[0] < x0 + 100 and y0 < pos[1] < y0 + 100]
+                assert f'{FACE_NAMES[face]}, id {tag}' in [text for text, _, _ in inside]
+                edges = [(text, pos, rot) for text, pos, rot in inside
+                         if text.startswith('meets')]
+                assert len(edges) == 4, (name, tag, edges)
+                met = set()
+                for text, (px, py), rotation in edges:
+                    gaps = {'left': px - x0, 'right': x0 + 100 - px, 'down': py - y0,
+                            'up': y0 + 100 - py}
+                    side = min(gaps, key=gaps.get)
+                    assert gaps[side] < 10.0, (name, tag, text)     # in the border, off the tag
+                    assert rotation == (0.0 if side in ('up', 'down') else
+                                        (90.0 if side == 'left' else 270.0))
+                    a, b = np.array([*SIDE_DIRECTIONS[side], 0.0]) @ np.array([right, up]).T
+                    body = a * FACE_TAG_AXES[face][:, 0] + b * FACE_TAG_AXES[face][:, 1]
+                    other = int(np.argmax(FACE_NORMALS @ body))
+                    assert np.allclose(FACE_NORMALS[other], body), body
+                    assert text == f'meets {FACE_NAMES[other]} (id {faces[other]})', \
+                        f'{name}: tag {tag} {side}: {text}'
+                    met.add(other)
+                assert met == set(range(6)) - {face, int(OPPOSITE_FACE[face])}
+            if page.heavy_face is not None and page.weight_mark is not None:
+                mx, my = page.weight_mark
+                heavy = next(t for t in page.tiles if t.face == page.heavy_face)
+                assert heavy.origin[0] < mx < heavy.origin[0] + 100
+                disc = image[int(round((page.size_mm[1] - my) * PX_PER_MM)),
+                             int(round((mx - 1.5) * PX_PER_MM))]
+                assert 60 < disc < 200, f'{name}: no weight mark'
+        assert sorted(found) == sorted(faces), f'{name}: found {sorted(found)}'
+        marked = [p for p in layout if p.weight_mark is not None]
+        assert len(marked) == (0 if mass == 0 else 1)
+        assert all(any('W' in line for line in p.notes) for p in layout) == (mass != 0)
+
+
+def test_tile_layout_fits_the_sheet_and_forced_tiles(tmp_path):
+    assert cube_tiles.tile_grid(100.0, 'a4') == (1, 2)
+    assert cube_tiles.tile_grid(100.0, 'letter') == (1, 2)
+    assert cube_tiles.tile_grid(50.0, 'a4') == (3, 4)
+    for paper in ('a4', 'letter'):
+        bw, bh = cube_net.printable_box(paper)
+        for page in cube_tiles.tile_pages('c0-4-1-2-3-6/u', (0, 4, 1, 2, 3, 6), 0,
+                                          cube_mm=100.0, tag_mm=80.0, paper=paper):
+            for tile in page.tiles:
+                x, y = tile.origin
+                assert cube_net.MARGIN_MM <= x and x + 100 <= cube_net.MARGIN_MM + bw
+                bottom = cube_net.MARGIN_MM + cube_net.FOOTER_MM
+                assert bottom <= y and y + 100 <= bottom + bh
+    # A net that fits can still be tiled on request: one sheet of six 5 cm faces.
+    assert make_cubes.main(['c0-4-1-2-3-6/u', '--out', str(tmp_path), '--layout', 'tiles',
+                            '--cube-size', str(CUBE_M), '--tag-size', str(TAG_M)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['c0-4-1-2-3-6_u.pdf',
+                                                         'c0-4-1-2-3-6_u_page1.png']
+    image = cv2.imread(str(tmp_path / 'c0-4-1-2-3-6_u_page1.png'), cv2.IMREAD_GRAYSCALE)
+    assert sorted(detect(image)[0]) == [0, 1, 2, 3, 4, 6]

@@ -35,7 +35,7 @@ from abp_bench.netns_link import (
     link_environment,
     unavailable,
 )
-from tests.helpers.graph import graph_processes, node_log_tails
+from tests.helpers.graph import graph_processes, node_log_tails, stop_group
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 START_GRAPH = REPO / 'scripts' / 'start_graph.sh'
@@ -116,6 +116,13 @@ class SplitGraph:
             env=self.env)
         self.processes.wait_for_line(waiter, 'graph ready', READY_TIMEOUT_S + 10)
 
+    def stop(self):
+        """Ctrl-C to each part, the workstation first (its lifecycle manager still reaches
+        the robot's nodes while it shuts down), each given time to stop its nodes: a part
+        killed before its trap ran would leave its nodes running."""
+        for side in (WORKSTATION, ROBOT):
+            stop_group(self.parts[side], int_grace=60.0, term_grace=20.0)
+
     def log(self, side, node):
         return (self.log_dir[side] / f'{node}.log').read_text(errors='replace')
 
@@ -185,6 +192,7 @@ def test_an_episode_survives_a_10_s_link_drop_with_multicast_discovery(
     # No node restarted: each robot-side node's log shows one start.
     for node in ('sim_bridge', 'skill_servers', 'aspect_matcher'):
         assert 'restarting it' not in graph.log(ROBOT, node), node
+    graph.stop()
     ros_processes.stop_all()
     assert not graph_processes(), 'the graph left processes behind'
 
@@ -223,5 +231,6 @@ def test_a_link_down_past_the_timeout_aborts_cleanly_without_multicast(
     for node in ('sim_bridge', 'skill_servers', 'aspect_matcher', 'belief', 'planner'):
         side = WORKSTATION if node in ('belief', 'planner') else ROBOT
         assert 'restarting it' not in graph.log(side, node), node
+    graph.stop()
     ros_processes.stop_all()
     assert not graph_processes(), 'the graph left processes behind'

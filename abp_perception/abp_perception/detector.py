@@ -228,7 +228,9 @@ def paint_markers(gray, corners, grow=None):
         x1, y1 = np.clip(np.ceil(hi + pad), 0, (cols, rows)).astype(int)
         if x1 <= x0 or y1 <= y0:
             continue
-        level = int(np.percentile(gray[y0:y1, x0:x1], 90))
+        box = gray[y0:y1, x0:x1].ravel()
+        k = int(0.9 * (box.size - 1))
+        level = int(np.partition(box, k)[k])          # np.percentile: ~10x the cost
         cv2.fillConvexPoly(out, np.round(q).astype(np.int32), level)
     return out
 

@@ -9,7 +9,10 @@ Pipeline per grey image (``TagDetector.detect``):
    the whole image, or only on a region of it (``roi``: where the cube was,
    ``RegionSearch``, which searches the whole image every few frames). The 7 px window
    finds flat tags whose thin quiet zone the 3 and 13 px windows merge with the
-   background (issue 16: 25 tags within 1.5 m).
+   background (issue 16: 25 tags within 1.5 m). The scaled call sees the markers the
+   first two found painted over (``paint_markers``): their contours would only be
+   identified again, ~1.4 ms each for DICT_APRILTAG_36h11 in OpenCV 5 (54 of 73 ms on a
+   320x240 photo of 30 tags).
 2. Corners refined by edge-line fitting (``corners.refine_quads``; unbiased, unlike
    ``CORNER_REFINE_SUBPIX`` on L-shaped corners, see that module); on tags of 64 px and
    more, kept only where they sit on the marker's edges next to the corners no worse
@@ -179,6 +182,10 @@ THRESHOLD_WINDOWS = ((3, 3, 10, 1.0, None), (7, 7, 10, 1.0, 0.1), (11, 19, 8, 0.
 # several quads of DICT_4X4_50 (~4 ms each); none of DICT_APRILTAG_36h11 (~34 ms each,
 # expected ~38 ms before the first is measured: 0.35 s on a 320x240 photo unbudgeted).
 FACE_SEARCH_BUDGET_MS = 30.0
+# The scaled window set (THRESHOLD_WINDOWS) sees the image with the markers the full-size
+# sets found painted over (``paint_markers``), each grown by this fraction of its size
+# (0: not painted).
+PAINT_FOUND_GROW = 0.12
 # Accepted markers of two window sets with the same id and centres this close are one
 # (before refinement, to refine it once); contours further apart that the edge fit moves
 # onto the same tag are merged after it (``unique_detections`` in ``_finish``).
@@ -201,6 +208,31 @@ def dictionary_name(name_or_id) -> str:
     """The name of a predefined ArUco dictionary given by name or OpenCV id."""
     did = dictionary_id(name_or_id)
     return name_or_id if isinstance(name_or_id, str) else _DICTIONARY_BY_ID[did]
+
+
+def paint_markers(gray, corners, grow=None):
+    """A copy of `gray` with each marker quad of `corners` (grown by `grow` of its size
+    about its centre, PAINT_FOUND_GROW by default: the contour's corners leave a pixel of
+    the black border) filled with its quiet zone's brightness (90th percentile of its
+    bounding box grown by half), so no contour is found there."""
+    grow = PAINT_FOUND_GROW if grow is None else grow
+    out = gray.copy()
+    rows, cols = gray.shape
+    for quad in corners:
+        q = np.asarray(quad, dtype=np.float64).reshape(4, 2)
+        centre = q.mean(axis=0)
+        q = centre + (1.0 + grow) * (q - centre)
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        pad = 0.5 * (hi - lo)
+        x0, y0 = np.clip(np.floor(lo - pad), 0, (cols, rows)).astype(int)
+        x1, y1 = np.clip(np.ceil(hi + pad), 0, (cols, rows)).astype(int)
+        if x1 <= x0 or y1 <= y0:
+            continue
+        box = gray[y0:y1, x0:x1].ravel()
+        k = int(0.9 * (box.size - 1))
+        level = int(np.partition(box, k)[k])          # np.percentile: ~10x the cost
+        cv2.fillConvexPoly(out, np.round(q).astype(np.int32), level)
+    return out
 
 
 def _scaled_detect(aruco, gray, scale: float):
@@ -326,7 +358,13 @@ class TagDetector:
         contours (list), in full-image pixels."""
         corners, ids, rejected = [], [], []
         for aruco, scale in zip(self.arucos, self.aruco_scales):
-            c, i, r = _scaled_detect(aruco, gray, scale)
+            seen = gray
+            if scale != 1.0 and corners and PAINT_FOUND_GROW > 0:
+                # The scaled windows look for large, dim tags; the markers already found
+                # would only come back as contours ArUco tries to identify again (~1.4 ms
+                # each for DICT_APRILTAG_36h11 in OpenCV 5: most of a small frame's cost).
+                seen = paint_markers(gray, corners)
+            c, i, r = _scaled_detect(aruco, seen, scale)
             for quad, tag_id in zip(c, [] if i is None else i.ravel()):
                 centre = quad.reshape(4, 2).mean(axis=0)
                 if any(int(tag_id) == k and np.abs(centre - q.reshape(4, 2).mean(axis=0)).max()

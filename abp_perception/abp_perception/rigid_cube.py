@@ -28,7 +28,8 @@ mirrored pose of one tag does not fit the others.
 5. **Check**: the fit is kept when every tag's own RMS error under it is at most
    ``max_reprojection_error`` (or ``max_reprojection_fraction`` of its side, the
    larger); otherwise the worst tag is dropped and a group of >= 2
-   refitted (a stray tag linked by chance, or a tag from another cube).
+   refitted (a stray tag linked by chance, or a tag from another cube); of a group of
+   more than three tags (a cube shows at most three) the worst down to three at once.
 
 Each tag of a fitted cube then gets the pose the cube implies for it (``T_cube F_q``),
 with a covariance propagated from the cube fit; its own single-tag pose stays in
@@ -299,6 +300,10 @@ def _tag_covariance(cube_cov, cube_pose, placement):
     return 0.5 * (cov + cov.T)
 
 
+# Faces of a cube seen at once from any viewpoint (its tags in one fit).
+MAX_VISIBLE_FACES = 3
+
+
 def fit_cubes(detections, candidates, camera_matrix, dist_coeffs, cube_size,
               object_points, max_reprojection_error=2.0, corner_sigma_px=0.08,
               small_tag_px2=40.0, max_reprojection_fraction=0.0):
@@ -332,7 +337,12 @@ def fit_cubes(detections, candidates, camera_matrix, dist_coeffs, cube_size,
             if len(group) == 2:
                 best = None
                 break
-            group.pop(int(np.argmax(rms / limit)))
+            # A cube shows at most MAX_VISIBLE_FACES tags: of a larger group (a board or
+            # sheet of tags whose spacing and pose noise link them all) the worst are
+            # dropped at once, not refitted one by one (10 fits on an 11-tag board).
+            worst = np.argsort(-(rms / limit), kind='stable')
+            for k in sorted(worst[:max(1, len(group) - MAX_VISIBLE_FACES)], reverse=True):
+                group.pop(int(k))
         if best is None or len(group) < 2:
             continue
         pose, placement, rms, total, hess = best

@@ -229,3 +229,26 @@ def test_the_budget_is_charged_with_what_each_quad_took(camera, monkeypatch):
     none = blur_decode.DecodeBudget(0.0)
     assert blur_decode.decode_blurred(image, quads, d4, budget=none) == [None] * 3
     assert none.skipped == 3 and none.left == 0.0
+
+
+# -- e) the scaled threshold windows do not look again at the markers already found --------
+
+def test_painted_markers_leave_no_contour_and_their_neighbours_found(camera):
+    from abp_perception.detector import paint_markers
+    tags = [(3, tag_pose([-0.05, 0.0, 0.45], 20.0)), (7, tag_pose([0.05, 0.0, 0.45], -20.0))]
+    image = render_tags(camera.K, camera.width, camera.height, tags, MARKER)
+    detector = TagDetector(camera.K, cube_size=0)
+    corners, ids, _ = detector._detect_markers(image)
+    assert sorted(ids) == [3, 7]
+    first = [q for q, i in zip(corners, ids) if i == 3]
+    painted = paint_markers(image, first)
+    # The found marker is gone for every window set (no contour to identify again)...
+    for aruco in detector.arucos:
+        c, i, r = aruco.detectMarkers(painted)
+        centres = [q.reshape(4, 2).mean(axis=0) for q in list(c) + list(r)]
+        assert not any(np.linalg.norm(x - first[0].reshape(4, 2).mean(axis=0)) < 20
+                       for x in centres)
+        # ... and its neighbour, 10 cm away, is still found.
+        assert i is not None and 7 in i.ravel().tolist()
+    assert detector.detect(image).detections and sorted(
+        d.tag_id for d in detector.detect(image).detections) == [3, 7]

@@ -220,3 +220,28 @@ def test_cube_size_zero_turns_the_rigid_fit_off(camera):
     result = TagDetector(camera.K, cube_size=0).detect(image)
     assert len(result.detections) >= 2 and result.cubes == []
     assert all(d.solver == 'ippe_square' for d in result.detections)
+
+
+def test_a_flat_sheet_of_linked_tags_is_not_refitted_tag_by_tag(camera, monkeypatch):
+    # Six coplanar tags on a grid of the adjacent-face distance: all linked into one group,
+    # which no cube fits. A cube shows at most three tags, so the worst three go at once:
+    # fits of 6, 3 and 2 tags (not 6, 5, 4, 3, 2: a real ChArUco board of 11 tags cost 10).
+    from tag_scene import tag_pose
+
+    from abp_perception import rigid_cube
+    step = H / np.sqrt(2.0)
+    tags = [(40 + k, tag_pose([(k % 3 - 1) * step, (k // 3 - 0.5) * step, 0.8], 0.0))
+            for k in range(6)]
+    image = render_tags(camera.K, camera.width, camera.height, tags, 0.05)
+    sizes = []
+    real_fit = rigid_cube._Problem.fit
+
+    def counted(problem):
+        sizes.append(len(problem.candidates))
+        return real_fit(problem)
+
+    monkeypatch.setattr(rigid_cube._Problem, 'fit', counted)
+    result = TagDetector(camera.K, marker_size=0.05, cube_size=H).detect(image)
+    assert sorted(d.tag_id for d in result.detections) == list(range(40, 46))
+    assert result.cubes == []
+    assert sizes == [6, 3, 2]

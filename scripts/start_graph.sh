@@ -188,6 +188,11 @@ config="$(python -c 'from ament_index_python.packages import get_package_share_d
 if [ "$part" != all ] && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}${FASTDDS_DEFAULT_PROFILES_FILE:-}" ]; then
   export FASTRTPS_DEFAULT_PROFILES_FILE="${config%/abp.yaml}/fastdds_link.xml"
 fi
+# Fast DDS 2.14's shared-memory transport does not recover from a subscriber killed while
+# large samples flow: the camera's reader, restarted and matched, got no image until the
+# publisher restarted (eProsima/Fast-DDS#5469, #5053; docs/RECOVERY.md). The graph's
+# processes talk over UDP (loopback on one machine) unless the environment chooses.
+export FASTDDS_BUILTIN_TRANSPORTS="${FASTDDS_BUILTIN_TRANSPORTS:-UDPv4}"
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$log_dir"
 model_params="$log_dir/model_set.yaml"

@@ -302,6 +302,18 @@ def _add_distractors(spec, distractors):
                                 conaffinity=0, group=1)
 
 
+def rendered_as(img, encoding):
+    """An RGB frame from mujoco.Renderer as a sensor_msgs/Image `encoding` (rgb8, bgr8 or
+    mono8)."""
+    if encoding == 'rgb8':
+        return img
+    if encoding == 'bgr8':
+        return np.ascontiguousarray(img[:, :, ::-1])
+    if encoding == 'mono8':
+        return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
+    raise ValueError(f'encoding must be rgb8, bgr8 or mono8, got {encoding!r}')
+
+
 def build_spec(cube=None, settings=None, distractors=(), profile=None):
     """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere;
     `profile`: the robot (default: the uBot-6 profile)."""

@@ -48,6 +48,7 @@ from .mujoco_scene import (
     build_model,
     hand_bodies,
     mujoco,
+    rendered_as,
 )
 from .world_interface import CommandInputs, ContactEvent
 
@@ -559,15 +560,7 @@ class MujocoWorld(CommandInputs):
         self._renderer.update_scene(data, camera=CAMERA_NAME)
         if len(blank_faces):
             self._blank(data, blank_faces)
-        img = self._renderer.render()
-        if encoding == 'rgb8':
-            return img
-        import cv2
-        if encoding == 'bgr8':
-            return np.ascontiguousarray(img[:, :, ::-1])
-        if encoding == 'mono8':
-            return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        raise ValueError(f'encoding must be rgb8, bgr8 or mono8, got {encoding!r}')
+        return rendered_as(self._renderer.render(), encoding)
 
     def _blank(self, data, faces):
         """Sink the tag quads of `faces` into the cube (its white box face then hides them)."""

@@ -21,7 +21,7 @@ from abp_belief.cube import STATE_ROTATIONS, state_of
 from abp_description import camera_intrinsics
 from abp_description.frames import rot_z_deg
 
-from .mujoco_scene import CUBE_BODY, FLOOR_GEOM, CubeSpec, _add_cube, mujoco
+from .mujoco_scene import CUBE_BODY, FLOOR_GEOM, CubeSpec, _add_cube, mujoco, rendered_as
 from .mujoco_world import EGL_HINT, discrete_state
 
 CAMERA_NAME = 'fixed_camera'
@@ -173,15 +173,7 @@ class OperatorWorld:
             except Exception as error:  # noqa: BLE001 -- any GL failure means the same
                 raise RuntimeError(f'{EGL_HINT} ({type(error).__name__}: {error})') from None
         self._renderer.update_scene(self.data, camera=CAMERA_NAME)
-        img = self._renderer.render()
-        if encoding == 'rgb8':
-            return img
-        if encoding == 'bgr8':
-            return np.ascontiguousarray(img[:, :, ::-1])
-        if encoding == 'mono8':
-            import cv2
-            return cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-        raise ValueError(f'encoding must be rgb8, bgr8 or mono8, got {encoding!r}')
+        return rendered_as(self._renderer.render(), encoding)
 
     def close(self):
         if self._renderer is not None:

@@ -314,6 +314,25 @@ def rendered_as(img, encoding):
     raise ValueError(f'encoding must be rgb8, bgr8 or mono8, got {encoding!r}')
 
 
+def add_room(spec, shadows):
+    """The light, haze and checkered floor every abp scene shares; returns the floor geom
+    (its contacts are the caller's)."""
+    spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
+    spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
+    spec.visual.rgba.haze = [0.62, 0.66, 0.7, 1.0]
+    world = spec.worldbody
+    checker = spec.add_texture(name='floor_grid', type=mujoco.mjtTexture.mjTEXTURE_2D,
+                               builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256,
+                               height=256, rgb1=[0.55, 0.52, 0.48], rgb2=[0.5, 0.47, 0.43])
+    floor_mat = spec.add_material(name='floor', texrepeat=[8, 8])
+    floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = checker.name
+    floor = world.add_geom(name=FLOOR_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE,
+                           size=[0, 0, 0.05], material='floor')
+    world.add_light(name='sun', pos=[1.0, 1.0, 3.0], dir=[-0.3, -0.3, -1.0],
+                    diffuse=[0.6, 0.6, 0.6], castshadow=shadows)
+    return floor
+
+
 def build_spec(cube=None, settings=None, distractors=(), profile=None):
     """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere;
     `profile`: the robot (default: the uBot-6 profile)."""
@@ -333,22 +352,11 @@ def build_spec(cube=None, settings=None, distractors=(), profile=None):
     height = settings.height or intr.height
     spec.visual.global_.offwidth = max(int(width), 640)
     spec.visual.global_.offheight = max(int(height), 480)
-    spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
-    spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
-    spec.visual.rgba.haze = [0.62, 0.66, 0.7, 1.0]
     _setup_robot(spec, settings, profile)
     _add_camera(spec, settings, profile)
-    world = spec.worldbody
-    checker = spec.add_texture(name='floor_grid', type=mujoco.mjtTexture.mjTEXTURE_2D,
-                               builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256,
-                               height=256, rgb1=[0.55, 0.52, 0.48], rgb2=[0.5, 0.47, 0.43])
-    floor_mat = spec.add_material(name='floor', texrepeat=[8, 8])
-    floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = checker.name
-    world.add_geom(name=FLOOR_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
-                   material='floor', friction=[settings.floor_friction, 0.005, 0.0001],
-                   contype=WORLD_BIT, conaffinity=WORLD_BIT | ROBOT_BIT)
-    world.add_light(name='sun', pos=[1.0, 1.0, 3.0], dir=[-0.3, -0.3, -1.0],
-                    diffuse=[0.6, 0.6, 0.6], castshadow=settings.shadows)
+    floor = add_room(spec, settings.shadows)
+    floor.friction = [settings.floor_friction, 0.005, 0.0001]
+    floor.contype, floor.conaffinity = WORLD_BIT, WORLD_BIT | ROBOT_BIT
     _add_cube(spec, cube)
     _add_distractors(spec, distractors)
     return spec

@@ -21,7 +21,7 @@ from abp_belief.cube import STATE_ROTATIONS, state_of
 from abp_description import camera_intrinsics
 from abp_description.frames import rot_z_deg
 
-from .mujoco_scene import CUBE_BODY, FLOOR_GEOM, CubeSpec, _add_cube, mujoco, rendered_as
+from .mujoco_scene import CUBE_BODY, CubeSpec, _add_cube, add_room, mujoco, rendered_as
 from .mujoco_world import EGL_HINT, discrete_state
 
 CAMERA_NAME = 'fixed_camera'
@@ -116,19 +116,8 @@ class OperatorWorld:
         spec.visual.quality.offsamples = 0
         spec.visual.global_.offwidth = max(self.width, 640)
         spec.visual.global_.offheight = max(self.height, 480)
-        spec.visual.headlight.ambient = [0.45, 0.45, 0.45]
-        spec.visual.headlight.diffuse = [0.45, 0.45, 0.45]
-        spec.visual.rgba.haze = [0.62, 0.66, 0.7, 1.0]
+        add_room(spec, shadows=False)
         world = spec.worldbody
-        checker = spec.add_texture(name='floor_grid', type=mujoco.mjtTexture.mjTEXTURE_2D,
-                                   builtin=mujoco.mjtBuiltin.mjBUILTIN_CHECKER, width=256,
-                                   height=256, rgb1=[0.55, 0.52, 0.48], rgb2=[0.5, 0.47, 0.43])
-        floor_mat = spec.add_material(name='floor', texrepeat=[8, 8])
-        floor_mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = checker.name
-        world.add_geom(name=FLOOR_GEOM, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
-                       material='floor')
-        world.add_light(name='sun', pos=[1.0, 1.0, 3.0], dir=[-0.3, -0.3, -1.0],
-                        diffuse=[0.6, 0.6, 0.6], castshadow=False)
         quat = np.zeros(4)
         camera_rot = self.camera_pose[:3, :3] @ MUJOCO_CAMERA_IN_OPTICAL
         mujoco.mju_mat2Quat(quat, np.ascontiguousarray(camera_rot).ravel())

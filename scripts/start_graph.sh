@@ -125,9 +125,9 @@ if [ -n "$operator" ]; then
     wrong_action_fraction="${wrong_action_fraction:-0}"; [[ "$wrong_action_fraction" == *.* ]] || wrong_action_fraction+=".0"
     [[ "$wrong_action_fraction" == .* ]] && wrong_action_fraction="0$wrong_action_fraction"
   else
-  [ -n "$camera" ] && [ -n "$calibration" ] || die "--operator person needs --camera and --calibration"
-  [ -f "$calibration" ] || die "--calibration file $calibration not found"
-  [[ "$camera" =~ ^/dev/ || "$camera" =~ ^[0-9]+$ || -e "$camera" ]] || die "--camera $camera: no such device, file or folder"
+    [ -n "$camera" ] && [ -n "$calibration" ] || die "--operator person needs --camera and --calibration"
+    [ -f "$calibration" ] || die "--calibration file $calibration not found"
+    [[ "$camera" =~ ^/dev/ || "$camera" =~ ^[0-9]+$ || -e "$camera" ]] || die "--camera $camera: no such device, file or folder"
   fi
   read -r -a pose_values <<< "$camera_pose"
   [ "${#pose_values[@]}" = 6 ] || die "--camera-pose needs 6 numbers: X Y Z ROLL PITCH YAW"
@@ -137,8 +137,8 @@ if [ -n "$operator" ]; then
     [[ "$v" == *.* ]] || v="$v."; [[ "$v" == *. ]] && v="${v}0"; pose_param+="${pose_param:+,}$v"
   done
   if [ "$operator" = person ]; then
-  calibration="$(cd "$(dirname "$calibration")" && pwd)/$(basename "$calibration")"
-  [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && camera="$(cd "$(dirname "$camera")" && pwd)/$(basename "$camera")"
+    calibration="$(cd "$(dirname "$calibration")" && pwd)/$(basename "$calibration")"
+    [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && camera="$(cd "$(dirname "$camera")" && pwd)/$(basename "$camera")"
   fi
 elif [ -n "$camera$calibration" ]; then
   die "--camera and --calibration go with --operator person"
@@ -318,20 +318,20 @@ if [ -n "$operator" ]; then
   # bridge, no robot_state; the detector takes the camera pose from --camera-pose, not
   # from joint states.
   if [ "$operator" = person ]; then
-  echo "[start_graph] operator graph: camera $camera, a person on $operator_terminal"
-  loop=false; [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && loop=true
-  start_managed abp_perception camera -p "source:=$camera" -p "calibration_file:=$calibration" \
-    -p "loop:=$loop"
+    echo "[start_graph] operator graph: camera $camera, a person on $operator_terminal"
+    loop=false; [ -e "$camera" ] && [[ ! "$camera" =~ ^/dev/ ]] && loop=true
+    start_managed abp_perception camera -p "source:=$camera" -p "calibration_file:=$calibration" \
+      -p "loop:=$loop"
   else
-  # The camera and the person simulated: operator_skills' terminal is the scripted
-  # person's pty, linked at operator_pty when its process starts (waited for below).
-  operator_terminal="$log_dir/operator_pty"
-  rm -f "$operator_terminal"
-  echo "[start_graph] scripted operator graph: MuJoCo camera at \"$camera_pose\", wrong actions $wrong_action_fraction$( [ "$operator_silent" = true ] && echo ", SILENT")"
-  start_managed abp_sim_bridge scripted_operator -p "terminal_link:=$operator_terminal" \
-    -p "model_index:=$object" -p "cube_seed:=$seed" -p "operator_seed:=$seed" \
-    -p "camera_pose:=[$pose_param]" -p "wrong_action_fraction:=$wrong_action_fraction" \
-    -p "silent:=$operator_silent"
+    # The camera and the person simulated: operator_skills' terminal is the scripted
+    # person's pty, linked at operator_pty when its process starts (waited for below).
+    operator_terminal="$log_dir/operator_pty"
+    rm -f "$operator_terminal"
+    echo "[start_graph] scripted operator graph: MuJoCo camera at \"$camera_pose\", wrong actions $wrong_action_fraction$( [ "$operator_silent" = true ] && echo ", SILENT")"
+    start_managed abp_sim_bridge scripted_operator -p "terminal_link:=$operator_terminal" \
+      -p "model_index:=$object" -p "cube_seed:=$seed" -p "operator_seed:=$seed" \
+      -p "camera_pose:=[$pose_param]" -p "wrong_action_fraction:=$wrong_action_fraction" \
+      -p "silent:=$operator_silent"
   fi
   start_managed abp_perception artag_detector -p "fixed_camera_pose:=[$pose_param]"
   start_managed abp_perception aspect_matcher

@@ -197,7 +197,8 @@ class EpisodePorts(Protocol):
 
     def missing_nodes(self) -> list:
         """Names of the nodes the episode needs that are gone (BELIEF_NODE for the belief
-        node); empty when all are there."""
+        node); empty when all are there. A respawned belief node may be reported once
+        only (its new publisher is then known), so the caller acts on the list it got."""
 
     def publish_plan(self, decision, feasible) -> None: ...
 
@@ -308,10 +309,12 @@ class EpisodeRunner:
                 f'{self.ports.observations_since_reset()}')
         return first
 
-    def _wait_for_lost_nodes(self, belief):
-        """`belief` if every needed node is there; else pause until they are back and
-        return the belief re-observed after their return, or abort naming them."""
-        missing = self.ports.missing_nodes()
+    def _wait_for_lost_nodes(self, belief, missing=None):
+        """`belief` if every needed node is there (`missing`, asked for when None); else
+        pause until they are back and return the belief re-observed after their return,
+        or abort naming them."""
+        if missing is None:
+            missing = self.ports.missing_nodes()
         if not missing:
             return belief
         gone = set(missing)
@@ -377,8 +380,12 @@ class EpisodeRunner:
                 break
             # No evidence yet: the nodes it comes from may be gone (a link that dropped
             # takes them all): pause for them, naming them, rather than plan on without.
-            if self.ports.missing_nodes():
-                return self._wait_for_lost_nodes(None)
+            # Asked once: a respawned belief node is reported once (EpisodePorts); asked
+            # again it would be "all there", and the episode would plan on the old belief
+            # (a CI run: the respawned belief node was never re-observed).
+            missing = self.ports.missing_nodes()
+            if missing:
+                return self._wait_for_lost_nodes(None, missing)
         if self.ports.belief_restarted() or (fresh is not None and fresh.step < step_before):
             self.log.warning(f'the belief went back from step {step_before} (now step '
                              f'{fresh.step if fresh is not None else "-"}): the belief node '

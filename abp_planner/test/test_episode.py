@@ -161,6 +161,39 @@ def test_a_lost_belief_node_pauses_the_episode_and_its_return_restarts_the_evide
     assert result.actions_taken == 1 + 3  # the evidence of the first action was lost
 
 
+def test_a_respawn_reported_once_while_waiting_for_evidence_is_re_observed(caplog):
+    """The belief node is killed after the first action and respawned before DDS drops
+    the old one: the action's evidence never comes, and the ROS side reports the belief
+    node lost once only (at its first sight of the new node's publisher), as
+    PlannerNode.missing_nodes does. The episode must re-observe, not plan on the old
+    belief (a CI run: asked twice, the second answer was "all there")."""
+    clock = FakeClock()
+    seen = []
+
+    def respawned_once(ports):
+        if ports.executed and not seen:
+            seen.append(clock())
+            return [BELIEF_NODE]
+        return []
+
+    class NoEvidence(FakePorts):
+        def run_skill(self, action):
+            outcome = super().run_skill(action)
+            if len(self.skills) == 1:
+                self.belief = belief(1, self.first_posterior)  # its evidence died
+            return outcome
+
+    ports = NoEvidence(clock, gain=0.2, missing=respawned_once)
+    with caplog.at_level(logging.INFO, logger='episode'):
+        result = run(ports, timeout=5.0)
+    assert result.outcome == SUCCEEDED and result.success
+    said = [r.getMessage() for r in caplog.records]
+    assert any('belief back: re-observing' in line for line in said), said
+    assert ports.resets == 2
+    # Noticed at the first evidence check, a second after the action.
+    assert seen == [1.0]
+
+
 def test_evidence_cut_off_by_a_lost_link_pauses_the_episode_naming_what_is_gone(caplog):
     """A link to the robot drops as the first action is done: its evidence and the nodes
     it comes from are gone for 10 s. The runner pauses naming them (it does not wait out

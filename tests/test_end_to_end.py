@@ -29,7 +29,7 @@ import pytest
 
 from abp_belief.cube import MANUAL_ACTIONS
 from abp_belief.population import robot_set
-from tests.helpers.graph import graph_processes, node_log_tails, run_to_end
+from tests.helpers.graph import dds_transports, graph_processes, node_log_tails, run_to_end
 
 REPO = pathlib.Path(__file__).resolve().parent.parent
 SEED = 1
@@ -82,6 +82,12 @@ def test_cubes_are_recognised_one_goal_after_another_on_a_namespaced_rules_graph
         expected = {(name, f'/{NAMESPACE}') for name in soak.GRAPH_NODES}
         assert expected <= set(nodes), sorted(nodes)
         assert not {n for n, ns in nodes if ns == '/'} & set(soak.GRAPH_NODES), sorted(nodes)
+        # This session's LOCALHOST range: the graph stays on this machine, over UDP on the
+        # loopback interface, with no shared memory (start_graph.sh; docs/RECOVERY.md).
+        loopback = '0100007F'
+        for pid, command in graph_processes(with_pids=True):
+            shm, addresses = dds_transports(pid)
+            assert not shm and addresses == {loopback}, (command, shm, addresses)
         for episode, (mass, index) in enumerate(cubes.items()):
             driver.hide(index, models.names[index], failure_seed=0)
             record = soak.run_episode(driver, graph, episode, models.names[index],

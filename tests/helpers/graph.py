@@ -8,6 +8,7 @@ session's domain, and every later test of the session then sees its clock jump."
 
 import os
 import pathlib
+import re
 import signal
 import subprocess
 import time
@@ -36,6 +37,36 @@ def graph_processes(with_pids=False, markers=(b'/install/abp_',)):
             text = cmdline.replace(b'\0', b' ').decode(errors='replace').strip()
             found.append((int(proc.name), text) if with_pids else text)
     return found
+
+
+def dds_transports(pid):
+    """How process `pid` talks DDS: (its Fast DDS shared-memory threads, the local
+    addresses of its UDP sockets as /proc/net/udp writes them, e.g. '0100007F' for
+    127.0.0.1). Fast DDS names a thread per transport port it listens on: dds.shm.<port>,
+    dds.udp.<port>."""
+    proc = pathlib.Path(f'/proc/{pid}')
+    shm = []
+    for task in (proc / 'task').iterdir():
+        try:
+            name = (task / 'comm').read_text().strip()
+        except OSError:
+            continue
+        if name.startswith('dds.shm'):
+            shm.append(name)
+    sockets = set()
+    for fd in (proc / 'fd').iterdir():
+        try:
+            match = re.fullmatch(r'socket:\[(\d+)\]', os.readlink(fd))
+        except OSError:
+            continue
+        if match:
+            sockets.add(match.group(1))
+    addresses = set()
+    for line in (proc / 'net' / 'udp').read_text().splitlines()[1:]:
+        fields = line.split()
+        if fields[9] in sockets:
+            addresses.add(fields[1].split(':')[0])
+    return shm, addresses
 
 
 def kill_leftovers(rounds=20):

@@ -191,15 +191,20 @@ fi
 # Fast DDS 2.14's shared-memory transport does not recover from a subscriber killed while
 # large samples flow: the camera's reader, restarted and matched, got no image until the
 # publisher restarted (eProsima/Fast-DDS#5469, #5053; docs/RECOVERY.md). The graph's
-# processes talk over UDP unless the environment chooses. With the LOCALHOST discovery
-# range, Jazzy's rmw_fastrtps sets shared memory and UDP itself and ignores
-# FASTDDS_BUILTIN_TRANSPORTS: there, a profile does the same over UDP on the loopback
-# interface only, and the SUBNET range lets it stand (config/fastdds_loopback_udp.xml).
-if [ "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" = LOCALHOST ] && [ -z "${ROS_STATIC_PEERS:-}" ] \
-    && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}${FASTDDS_DEFAULT_PROFILES_FILE:-}" ] \
+# processes talk over UDP with socket buffers that hold a camera frame
+# (config/fastdds_udp.xml), unless the environment names a Fast DDS profile or other
+# transports. With the LOCALHOST discovery range, Jazzy's rmw_fastrtps sets shared memory
+# and UDP itself, over any profile's transports: there a profile does the same over UDP on
+# the loopback interface only (config/fastdds_loopback_udp.xml), under the SUBNET range,
+# which leaves it as it is.
+if [ "$part" = all ] && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}${FASTDDS_DEFAULT_PROFILES_FILE:-}" ] \
     && [ "${FASTDDS_BUILTIN_TRANSPORTS:-UDPv4}" = UDPv4 ]; then
-  export FASTRTPS_DEFAULT_PROFILES_FILE="${config%/abp.yaml}/fastdds_loopback_udp.xml"
-  export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+  if [ "${ROS_AUTOMATIC_DISCOVERY_RANGE:-}" = LOCALHOST ] && [ -z "${ROS_STATIC_PEERS:-}" ]; then
+    export FASTRTPS_DEFAULT_PROFILES_FILE="${config%/abp.yaml}/fastdds_loopback_udp.xml"
+    export ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET
+  else
+    export FASTRTPS_DEFAULT_PROFILES_FILE="${config%/abp.yaml}/fastdds_udp.xml"
+  fi
 fi
 export FASTDDS_BUILTIN_TRANSPORTS="${FASTDDS_BUILTIN_TRANSPORTS:-UDPv4}"
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"

@@ -77,9 +77,12 @@ def test_cubes_are_recognised_one_goal_after_another_on_a_namespaced_rules_graph
         assert driver.spin_until(lambda: driver.graph_ready, READY_TIMEOUT_S), \
             graph.tail() + node_log_tails(log_dir)
         assert f'sim (rules world) graph under /{NAMESPACE}' in graph.tail(1000), graph.tail()
-        # Every node under the namespace, none at the root (the ROS graph says so).
-        nodes = driver.node.get_node_names_and_namespaces()
+        # Every node under the namespace, none at the root (the ROS graph says so). The
+        # graph's node lists can reach this process after graph_ready: waited for.
         expected = {(name, f'/{NAMESPACE}') for name in soak.GRAPH_NODES}
+        driver.spin_until(
+            lambda: expected <= set(driver.node.get_node_names_and_namespaces()), 60)
+        nodes = driver.node.get_node_names_and_namespaces()
         assert expected <= set(nodes), sorted(nodes)
         assert not {n for n, ns in nodes if ns == '/'} & set(soak.GRAPH_NODES), sorted(nodes)
         # This session's LOCALHOST range: the graph stays on this machine, over UDP on the

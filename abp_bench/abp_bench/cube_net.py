@@ -162,16 +162,19 @@ def marker_modules(dictionary_id: int, tag_id: int) -> np.ndarray:
 
 @dataclass
 class PlacedSquare:
-    face: int
+    """One face square where it is printed on the page."""
+
+    face: int                  # body face 0:+x 1:-x 2:+y 3:-y 4:+z 5:-z
     tag_id: int
     origin: tuple              # bottom-left corner, mm
     modules: np.ndarray        # tag modules as printed (already turned), row 0 at the top
-    quarter_turns: int
+    quarter_turns: int         # as on this face's square of the cross net
 
 
-@dataclass
-class CubePage:
-    """Everything `printable_pages.draw_cube_page` draws, in page millimetres."""
+@dataclass(kw_only=True)
+class CubeSheet:
+    """What every printed sheet of a cube says, in page millimetres: a net (`CubePage`)
+    or a sheet of tiles (`cube_tiles.TilePage`)."""
 
     name: str
     faces: tuple               # tag id on body faces +x -x +y -y +z -z
@@ -181,14 +184,20 @@ class CubePage:
     cube_mm: float
     tag_mm: float
     dictionary: str
-    squares: list
-    folds: list                # ((x0, y0), (x1, y1)) segments
-    cuts: list                 # ((x0, y0), (x1, y1)) segments of the outline
-    tabs: list                 # (polygon (k, 2), label, label centre, label angle deg)
     scale_bar: tuple           # (x0, y0): left end of the bar's bottom edge; SCALE_BAR_MM long
     heavy_face: int | None = None
     weight_mark: tuple | None = None   # centre of the weight mark on the heavy face, mm
     notes: list = field(default_factory=list)
+
+
+@dataclass(kw_only=True)
+class CubePage(CubeSheet):
+    """Everything `printable_pages.draw_cube_page` draws."""
+
+    squares: list
+    folds: list                # ((x0, y0), (x1, y1)) segments
+    cuts: list                 # ((x0, y0), (x1, y1)) segments of the outline
+    tabs: list                 # (polygon (k, 2), label, label centre, label angle deg)
 
 
 def parse_model_name(name: str) -> tuple[tuple, int]:
@@ -382,7 +391,7 @@ def weight_notes(faces, mass_index: int, thing: str) -> list[str]:
         '(the simulated cube: 62 % of its mass in a slab against that face).']
 
 
-__all__ = ['CROSS_CELLS', 'CubePage', 'NetDoesNotFit', 'PAPER_MM', 'SCALE_BAR_MM', 'Square',
-           'Tab', 'check_fits', 'check_sizes', 'cross_squares', 'cube_page', 'dictionary_id',
-           'fold_lines', 'glue_tabs', 'largest_cube_mm', 'marker_modules', 'parse_model_name',
-           'printable_box', 'weight_notes']
+__all__ = ['CROSS_CELLS', 'CubePage', 'CubeSheet', 'NetDoesNotFit', 'PAPER_MM', 'PlacedSquare',
+           'SCALE_BAR_MM', 'Square', 'Tab', 'check_fits', 'check_sizes', 'cross_squares',
+           'cube_page', 'dictionary_id', 'fold_lines', 'glue_tabs', 'largest_cube_mm',
+           'marker_modules', 'parse_model_name', 'printable_box', 'weight_notes']

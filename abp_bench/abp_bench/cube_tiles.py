@@ -12,7 +12,7 @@ a `TilePage`. Page coordinates are millimetres, origin at the sheet's bottom-lef
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,7 +23,9 @@ from .cube_net import (
     MARGIN_MM,
     PAPER_MM,
     SIDES,
+    CubeSheet,
     NetDoesNotFit,
+    PlacedSquare,
     check_sizes,
     cross_squares,
     dictionary_id,
@@ -36,36 +38,20 @@ TILE_GAP_MM = 6.0          # between tiles: room for the scissors
 
 
 @dataclass
-class Tile:
-    """One face square on a tile page."""
+class Tile(PlacedSquare):
+    """One face square on a tile page: a square of the net, cut out on its own, that says
+    which face each side meets."""
 
-    face: int                  # body face 0:+x 1:-x 2:+y 3:-y 4:+z 5:-z
-    tag_id: int
-    origin: tuple              # bottom-left corner, mm
-    modules: np.ndarray        # tag modules as printed (already turned), row 0 at the top
-    quarter_turns: int         # as on this face's square of the cross net
     meets: dict                # side ('right', 'up', 'left', 'down') -> body face across it
 
 
-@dataclass
-class TilePage:
+@dataclass(kw_only=True)
+class TilePage(CubeSheet):
     """One sheet of tiles: everything `printable_pages.draw_tile_page` draws."""
 
-    name: str
-    faces: tuple               # tag id on body faces +x -x +y -y +z -z
-    mass_index: int
-    paper: str
-    size_mm: tuple
-    cube_mm: float
-    tag_mm: float
-    dictionary: str
     tiles: list
     number: int                # 1-based page number
     page_count: int
-    scale_bar: tuple           # (x0, y0): left end of the bar's bottom edge
-    heavy_face: int | None = None
-    weight_mark: tuple | None = None   # centre of the W mark when the heavy face is here
-    notes: list = field(default_factory=list)
 
 
 def face_label(face: int, tag_id: int) -> str:

@@ -23,7 +23,7 @@ from matplotlib.backends.backend_pdf import PdfPages  # noqa: E402
 from matplotlib.patches import PathPatch, Polygon, Rectangle  # noqa: E402
 from matplotlib.path import Path  # noqa: E402
 
-from .cube_net import MARGIN_MM, SCALE_BAR_MM, CubePage  # noqa: E402
+from .cube_net import MARGIN_MM, SCALE_BAR_MM, CubePage, CubeSheet  # noqa: E402
 from .cube_tiles import TilePage, edge_label, face_label  # noqa: E402
 
 PNG_DPI = 300
@@ -111,14 +111,20 @@ def draw_cube_page(page: CubePage):
         # The tag id in the border's corner, small and grey: people read it, detectors ignore it.
         ax.text(x + margin / 2, y + margin / 2, str(sq.tag_id), ha='center', va='center',
                 fontsize=min(6.0, 0.45 * margin / PT_MM), color='0.45')
+    _finish_sheet(ax, page, margin, f'ARcube {page.name}')
+    return fig
+
+
+def _finish_sheet(ax, page: CubeSheet, margin: float, title: str):
+    """What every sheet of a cube has besides its squares: the weight mark (on an
+    eccentric cube's heavy face), the title, the scale bar and the notes under it."""
     if page.weight_mark is not None:
         _weight_mark(ax, page.weight_mark, margin)
-    _title(ax, page, f'ARcube {page.name}')
+    _title(ax, page, title)
     bar_x, bar_y = page.scale_bar
     draw_scale_bar(ax, bar_x, bar_y)
     ax.text(MARGIN_MM, bar_y - 3.0, '\n'.join(page.notes), ha='left', va='top', fontsize=6.5,
             linespacing=1.35)
-    return fig
 
 
 def _title(ax, page, title: str):
@@ -165,13 +171,8 @@ def draw_tile_page(page: TilePage):
             ax.text(x + fx * e + ix * 0.4 * margin, y + fy * e + iy * 0.4 * margin,
                     edge_label(other, page.faces[other]), ha='center', va='center',
                     rotation=angle, fontsize=size, color='0.45')
-    if page.weight_mark is not None:
-        _weight_mark(ax, page.weight_mark, margin)
-    _title(ax, page, f'ARcube {page.name}, faces page {page.number}/{page.page_count}')
-    bar_x, bar_y = page.scale_bar
-    draw_scale_bar(ax, bar_x, bar_y)
-    ax.text(MARGIN_MM, bar_y - 3.0, '\n'.join(page.notes), ha='left', va='top', fontsize=6.5,
-            linespacing=1.35)
+    _finish_sheet(ax, page, margin,
+                  f'ARcube {page.name}, faces page {page.number}/{page.page_count}')
     return fig
 
 

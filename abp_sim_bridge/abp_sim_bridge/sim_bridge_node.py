@@ -229,6 +229,7 @@ class SimBridgeNode(ManagedNode):
         values = config.values
         self._state_schedule = StateSchedule(values['state_rate'], start_time_ns, tick_ns)
         self._clock_limit = WallRateLimit(values['clock_max_wall_rate'])
+        self._clock_sent_ns = None   # the simulation time last sent on /clock
         self._camera_limit = WallRateLimit(values['camera_max_wall_rate'])
         self._command_wait = BaseCommandWait(values['command_wait'])
         self._event_index = 0
@@ -316,6 +317,7 @@ class SimBridgeNode(ManagedNode):
             wait_s = pacer.wait_s(sim.time_ns, sim.time_ns + sim.period_ns)
             if wait_s == 0 and self._command_wait.hold(sim.time_ns, sim.cmd, sim.cmd_time_ns,
                                                        time.monotonic()):
+                self._publish_held_clock(sim.time_ns)
                 wait_s = COMMAND_POLL_S
             if wait_s > 0:
                 self._stop.wait(wait_s)
@@ -326,6 +328,19 @@ class SimBridgeNode(ManagedNode):
                 self.get_logger().warning(
                     f'simulation runs at {factor:.2f}x wall time (speedup {pacer.speedup:g} '
                     'asked for): the machine cannot keep up')
+
+    def _publish_clock(self, t_ns, stamp):
+        if self._clock_pub is not None:
+            self._clock_msg.clock = stamp
+            self._clock_pub.publish(self._clock_msg)
+        self._clock_sent_ns = t_ns
+
+    def _publish_held_clock(self, t_ns):
+        """While the simulation waits for a late base command, the skills must see the
+        time it waits at: /clock is rate-limited, and a control loop sleeping on an older
+        stamp would not send the command until its wall-time cap (0.5 s) ran out."""
+        if self._clock_sent_ns != t_ns:
+            self._publish_clock(t_ns, sim_messages.stamp(t_ns + self._epoch_ns))
 
     def _take_frame(self, t_ns, wall_now):
         """Whether this tick takes a camera frame: one is due, the renderer is free and
@@ -368,9 +383,8 @@ class SimBridgeNode(ManagedNode):
                 gt = sim_messages.ground_truth(self.sim, self.hidden, stamp, ODOM_FRAME)
         self.health.latency(time.perf_counter() - started)
         self._controller_actions.report(goal_ends)
-        if self._clock_pub is not None and send_clock:
-            self._clock_msg.clock = stamp
-            self._clock_pub.publish(self._clock_msg)
+        if send_clock:
+            self._publish_clock(t_ns, stamp)
         if joints is not None:
             self._joint_pub.publish(joints)
             self._odom_pub.publish(odom)

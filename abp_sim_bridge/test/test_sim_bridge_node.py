@@ -373,6 +373,35 @@ def test_state_clock_and_frames_are_thinned_but_each_image_has_its_joint_state(
         f'{len(images)} images in {image_wall_s:.1f} s of wall time'
 
 
+def test_a_simulation_waiting_for_a_late_base_command_sends_the_time_it_waits_at(
+        ros_processes, tester_factory):
+    """command_wait: while the base drives, the simulation stops command_wait after the
+    last /cmd_vel and waits for the next (up to 0.5 s of wall time). The skills send that
+    command when their clock reaches the next control period, so the time the simulation
+    stopped at must reach them at once: here /clock is capped at one a wall second (10 s
+    of simulation time apart), and the only /clock near the stop is the one sent for it."""
+    tick_s, state_s, wait_s = 0.02, 0.04, 0.15
+    start_bridge(ros_processes, world='rules', speedup=10.0, camera_rate=0.0,
+                 state_rate=1 / state_s, clock_max_wall_rate=1.0, command_wait=wait_s)
+    t = tester_factory('clock', 'odom')
+    assert t.spin_until(lambda: t.msgs['clock'] and t.msgs['odom'], 60), 'no /clock or /odom'
+    pub = t.node.create_publisher(TwistStamped, '/cmd_vel', 10)
+    cmd = TwistStamped()
+    cmd.twist.angular.z = 0.3
+    publish_when_matched(t, pub, cmd)
+    assert t.spin_until(lambda: moving_runs(t.msgs['odom']), 30), 'the base never moved'
+    moved_s = ns(moving_runs(t.msgs['odom'])[0][0].header.stamp) * 1e-9
+    # The command arrived at most one state period before the first moving odometry; the
+    # simulation stops at the first tick command_wait after it.
+    earliest, latest = moved_s - state_s + wait_s, moved_s + wait_s + tick_s
+    assert t.spin_until(lambda: ns(t.last('clock').clock) * 1e-9 > latest, 30), \
+        '/clock stopped'
+    clocks = [ns(m.clock) * 1e-9 for m in t.msgs['clock']]
+    held = [c for c in clocks if earliest - 1e-6 <= c <= latest + 1e-6]
+    assert held, (f'no /clock in [{earliest:.2f}, {latest:.2f}] s, where the simulation '
+                  f'waited for a base command; /clock stamps: {clocks}')
+
+
 def test_joint_trajectories_are_tracked(ros_processes, tester_factory):
     start_bridge(ros_processes, world='rules', speedup=4.0, camera_rate=0.0,
                  look_at_cube=False)

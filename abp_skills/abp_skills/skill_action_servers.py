@@ -103,7 +103,8 @@ class SkillActionServers:
         goal_handle.publish_feedback(fb)
 
     def _sleep_period(self):
-        sleep_on_clock(1.0 / self.ctx.param('control_rate'), self.ctx.now)
+        sleep_on_clock(1.0 / self.ctx.param('control_rate'), self.ctx.now,
+                       sleep=self.ctx.clock_sleep)
 
     # -- the two kinds of motion -----------------------------------------------------------
     def _drive(self, skill, goal_handle, started, plan, progress_of, head_q=None):

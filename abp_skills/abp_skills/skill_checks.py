@@ -154,7 +154,8 @@ class OdometryGap:
 def sleep_on_clock(seconds, now, sleep=time.sleep, monotonic=time.monotonic):
     """Sleep `seconds` on the clock `now()` (sim time when use_sim_time is set), at most a
     few wall seconds (max(0.5, 5 x seconds)) so that a stopped /clock cannot block cancel
-    and timeout checks."""
+    and timeout checks. `sleep(t)` may return early (clock_ticks.ClockTicks.sleep wakes
+    when the clock moves): the clock is read again after each return."""
     end = now() + seconds
     wall_end = monotonic() + max(0.5, 5.0 * seconds)
     while now() < end and monotonic() < wall_end:

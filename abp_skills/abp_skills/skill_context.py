@@ -10,6 +10,7 @@ no rclpy import.
 """
 
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -28,6 +29,8 @@ class SkillsContext:
     motion_planner: Any
     plan_lock: threading.Lock = field(default_factory=threading.Lock)
     fk_lock: threading.Lock = field(default_factory=threading.Lock)
+    # Sleeps up to t wall seconds, waking early when the clock moves (clock_ticks).
+    clock_sleep: Callable[[float], None] = time.sleep
     commands: Any = None           # robot_topics.RobotCommands, once active
     claim: Any = None              # skill_claim.SkillClaim, once active
 

@@ -62,6 +62,7 @@ from abp_description.kinematics import RobotKinematics
 from abp_description.robot_profile import PROFILE_SPEC, load_profile
 
 from .clock_rate import ClockRate
+from .clock_ticks import ClockTicks
 from .feasibility_service import FeasibilityService
 from .plans import SkillPlanner
 from .robot_state import RobotState
@@ -82,6 +83,7 @@ class SkillsNode(ManagedNode):
         super().__init__(node_name)
         self._skills = skills
         self._feasibility = feasibility
+        self._clock_ticks = ClockTicks(self.get_clock())   # one per node: a jump callback
 
     def configure(self):
         # The robot profile first: it sets the robot's defaults of the other parameters.
@@ -98,6 +100,7 @@ class SkillsNode(ManagedNode):
             ros=self, health=self.health, callback_group=ReentrantCallbackGroup(),
             param=self.param, kin=kin, state=RobotState(self.now, kin.q_from_mapping),
             clock_rate=ClockRate(),   # fed by /joint_states (robot_topics)
+            clock_sleep=self._clock_ticks.sleep,
             motion_planner=SkillPlanner(RobotKinematics(profile=profile),
                                         config_from_values(values, profile)))
         self.add_on_set_parameters_callback(self._on_set_parameters)

@@ -49,8 +49,10 @@ class NodeHealth:
                                         clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     # -- inputs --------------------------------------------------------------------------
-    def subscribe(self, msg_type, topic, callback, qos, **kwargs):
-        """create_subscription whose callback is counted and guarded (module doc)."""
+    def subscribe(self, msg_type, topic, callback, qos, node=None, **kwargs):
+        """create_subscription whose callback is counted and guarded (module doc). `node`:
+        another node of this process to subscribe on (its own executor), to `topic` as
+        this node resolves it (its namespace and remappings); counted here all the same."""
         def guarded(msg):
             self.stats.count_input(topic)
             try:
@@ -63,7 +65,10 @@ class NodeHealth:
                 self.reject(topic, 'internal_error',
                             f'{type(error).__name__}: {error}\n{traceback.format_exc()}',
                             error=True)
-        return self.node.create_subscription(msg_type, topic, guarded, qos, **kwargs)
+        if node is None:
+            return self.node.create_subscription(msg_type, topic, guarded, qos, **kwargs)
+        return node.create_subscription(msg_type, self.node.resolve_topic_name(topic), guarded,
+                                        qos, **kwargs)
 
     def count_input(self, topic):
         self.stats.count_input(topic)

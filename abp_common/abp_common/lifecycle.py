@@ -198,10 +198,16 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
                                     f'{type(error).__name__}: {error}')
 
     # -- status for the lifecycle manager --------------------------------------------
+    def helper_subscriptions(self):
+        """Subscriptions this node made on a helper node of its own (with its own executor)
+        that its endpoint report must include; none by default."""
+        return ()
+
     def endpoint_report(self):
         return endpoint_report(
             self.state_label(), self.instance,
-            ((s.topic_name, s.get_publisher_count()) for s in self.subscriptions),
+            ((s.topic_name, s.get_publisher_count())
+             for s in (*self.subscriptions, *self.helper_subscriptions())),
             ((p.topic_name, p.get_subscription_count()) for p in self.publishers))
 
     def _on_endpoint_status(self, request, response):

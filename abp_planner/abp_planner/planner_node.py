@@ -36,6 +36,7 @@ from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import input_checks, names, qos
 from abp_common.health import DIAGNOSTICS, NodeHealth, node_of_status
 from abp_common.input_checks import Rejected
+from abp_common.input_node import InputNode
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
@@ -70,6 +71,7 @@ class PlannerNode(ManagedNode):
 
     def __init__(self, **kwargs):
         super().__init__('planner', **kwargs)
+        self._inputs = None   # abp_common.input_node.InputNode while active
 
     def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
@@ -85,8 +87,6 @@ class PlannerNode(ManagedNode):
         # planner skipped step 1 as "from before the reset" and waited for a correction
         # that had come (the "no belief took one" stalls of the fresh-clone runs).
         self._belief_group = MutuallyExclusiveCallbackGroup()
-        self._observation_group = MutuallyExclusiveCallbackGroup()
-        self._diagnostics_group = MutuallyExclusiveCallbackGroup()
         self._beliefs = BeliefInbox()
         self._cube_pose = None
         self._observations = ObservationTally()
@@ -119,12 +119,6 @@ class PlannerNode(ManagedNode):
         self._belief_sub = self.health.subscribe(
             Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
             callback_group=self._belief_group)
-        self._observation_sub = self.health.subscribe(
-            AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
-            callback_group=self._observation_group)
-        # The belief node's own account, quoted when an episode gets no observation.
-        self.create_subscription(DiagnosticArray, DIAGNOSTICS, self._on_diagnostics, 10,
-                                 callback_group=self._diagnostics_group)
         self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
                                                callback_group=self._group)
@@ -134,7 +128,26 @@ class PlannerNode(ManagedNode):
             self, Recognize, names.RECOGNIZE, self._execute,
             goal_callback=self._on_goal, cancel_callback=lambda _: CancelResponse.ACCEPT,
             callback_group=self._group)
+        # The 10 Hz observations and every node's /diagnostics on an input node of their
+        # own (abp_common.input_node: this node's multi-threaded executor woke ~20 times a
+        # message); its one thread keeps each topic in order. Last: nothing after it can
+        # fail and leave its thread running (closed at deactivate).
+        self._inputs = InputNode(self)
+        self._observation_sub = self.health.subscribe(
+            AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
+            node=self._inputs.node)
+        # The belief node's own account, quoted when an episode gets no observation.
+        self._inputs.node.create_subscription(
+            DiagnosticArray, self.resolve_topic_name(DIAGNOSTICS), self._on_diagnostics, 10)
         self.get_logger().info(self._ready_line)
+
+    def deactivate(self):
+        if self._inputs is not None:
+            self._inputs.close()
+            self._inputs = None
+
+    def helper_subscriptions(self):
+        return self._inputs.subscriptions if self._inputs is not None else ()
 
     def _param(self, name):
         return self.get_parameter(name).value

@@ -84,6 +84,7 @@ class SkillsNode(ManagedNode):
         self._skills = skills
         self._feasibility = feasibility
         self._clock_ticks = ClockTicks(self.get_clock())   # one per node: a jump callback
+        self.inputs = None   # robot_topics.RobotInputs while active
 
     def configure(self):
         # The robot profile first: it sets the robot's defaults of the other parameters.
@@ -108,7 +109,6 @@ class SkillsNode(ManagedNode):
     def activate(self):
         skills = self._skills
         ctx = self.ctx
-        self.inputs = RobotInputs(ctx)
         ctx.commands = RobotCommands(ctx)
 
         self._active_pub = self.create_publisher(String, names.SKILLS_ACTIVE, LATCHED)
@@ -122,6 +122,8 @@ class SkillsNode(ManagedNode):
         self.feasibility = (FeasibilityService(ctx) if self._values['feasibility_service']
                             else None)
         ctx.claim.announce()
+        # Last: nothing after it can fail and leave its thread running (close: deactivate).
+        self.inputs = RobotInputs(ctx)
         hosted = [self.resolve_topic_name(names.skill_action(s)) for s in skills]
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
@@ -129,6 +131,13 @@ class SkillsNode(ManagedNode):
 
     def deactivate(self):
         _stop_robot(self)
+        if self.inputs is not None:
+            self.inputs.close()
+            self.inputs = None
+
+    def helper_subscriptions(self):
+        # The sensor topics are on the inputs' own node (robot_topics.RobotInputs).
+        return self.inputs.subscriptions if self.inputs is not None else ()
 
     def _on_skills_state(self, msg):
         input_checks.skills_state(msg.data)     # Rejected: not a skills state

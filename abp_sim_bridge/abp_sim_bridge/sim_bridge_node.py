@@ -336,9 +336,8 @@ class SimBridgeNode(ManagedNode):
         self._clock_sent_ns = t_ns
 
     def _publish_held_clock(self, t_ns):
-        """While the simulation waits for a late base command, the skills must see the
-        time it waits at: /clock is rate-limited, and a control loop sleeping on an older
-        stamp would not send the command until its wall-time cap (0.5 s) ran out."""
+        """Waiting for a late base command: the skills must see the time waited at (a
+        loop sleeping on an older, rate-capped /clock would wait out its 0.5 s wall cap)."""
         if self._clock_sent_ns != t_ns:
             self._publish_clock(t_ns, sim_messages.stamp(t_ns + self._epoch_ns))
 

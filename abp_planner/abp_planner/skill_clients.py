@@ -26,8 +26,9 @@ from abp_common.server_handshake import PROBE_TIMEOUT_S, ask_action_server
 from abp_msgs.action import Flip, Lift, Orbit, Push
 from abp_msgs.msg import ExecutedAction
 
-# While a skill runs: how often to check that the server that took the goal is still there.
+# While a goal is sent or a skill runs: how often to check that its server is still there.
 SERVER_CHECK_S = 1.0
+GOAL_ANSWER_TIMEOUT_S = 10.0
 # For reasons: GoalStatus value -> 'aborted', 'canceled', ...
 STATUS_NAMES = {getattr(GoalStatus, name): name[len('STATUS_'):].lower()
                 for name in dir(GoalStatus) if name.startswith('STATUS_')}
@@ -104,16 +105,23 @@ class SkillClients:
             return (False, f'skill server {names.skill_action(skill)} does not answer',
                     Duration().to_msg())
         started = clock.now()
-        send = wait_future(self._request(lambda: client.send_goal_async(make_goal())), 10.0)
-        if send is None or not send.accepted:
+        # The server, by its status publishers: if they all leave the graph (a killed
+        # server's or a lost link's lease ends), a goal sent to it died with it. A
+        # respawned server answers under the same name but never knew the goal; without
+        # this the episode waited for the whole skill_timeout.
+        servers = self._status_publishers(skill)
+        sent = self._request(lambda: client.send_goal_async(make_goal()))
+        send, gone = self._wait_while_there(sent, skill, servers, GOAL_ANSWER_TIMEOUT_S)
+        if gone:
+            return (False, f'skill server {names.skill_action(skill)} went away before '
+                    'answering the goal', Duration().to_msg())
+        if send is None:
+            return (False, f'{skill} goal got no answer within {GOAL_ANSWER_TIMEOUT_S:.0f} s',
+                    Duration().to_msg())
+        if not send.accepted:
             return False, f'{skill} goal rejected', Duration().to_msg()
         result_future = self._request(send.get_result_async)
         deadline = time.monotonic() + timeout_s
-        # The server that took the goal, by its status publishers: if they all leave the
-        # graph (a killed server's lease ends, ~20 s), the goal died with it. A respawned
-        # server answers under the same name but never knew the goal; without this the
-        # episode waited for the whole skill_timeout.
-        servers = self._status_publishers(skill)
         next_check = time.monotonic() + SERVER_CHECK_S
         while not result_future.done():
             if servers and time.monotonic() > next_check:
@@ -138,6 +146,18 @@ class SkillClients:
             status = STATUS_NAMES.get(response.status, response.status)
             reason = f'{skill} ended with goal status {status} and no reason'
         return bool(result.success), reason, result.duration
+
+    def _wait_while_there(self, future, skill, servers, timeout_s):
+        """(result, gone): the future's result, or None after `timeout_s`; gone is True
+        when every one of `servers` left the graph first (checked each SERVER_CHECK_S)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            remaining = deadline - time.monotonic()
+            result = wait_future(future, max(0.0, min(SERVER_CHECK_S, remaining)))
+            if result is not None or remaining <= 0:
+                return result, False
+            if servers and not servers & self._status_publishers(skill):
+                return None, True
 
     def _status_publishers(self, skill):
         topic = names.absolute(names.skill_action(skill), self._node.get_namespace()) + \

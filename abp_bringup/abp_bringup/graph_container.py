@@ -26,7 +26,6 @@ node. A simulation or render thread that fails ends the container with code 1.
 
 import argparse
 import importlib
-import signal
 import sys
 from functools import partial
 
@@ -37,6 +36,7 @@ from rclpy.utilities import remove_ros_args
 from abp_common.lifecycle import BASE_CONFIG_ERRORS
 from abp_common.node_runner import (
     CONFIGURATION_ERROR_EXIT_CODE,
+    init_rclpy_with_quiet_interrupt,
     retire_ports_of_killed_participants,
 )
 
@@ -139,9 +139,8 @@ def parse(argv):
 def main(args=None):
     argv = sys.argv if args is None else args
     wanted = parse(argv)
-    signal.signal(signal.SIGINT, _interrupt_ends_the_spin)
     retire_ports_of_killed_participants('graph_container')  # a restarted container: run 65
-    rclpy.init(args=argv)
+    init_rclpy_with_quiet_interrupt(argv)
     nodes = {}
     try:
         for name in wanted:
@@ -182,11 +181,6 @@ def _shut_down(nodes, code):
         node.destroy_node()
     rclpy.try_shutdown()
     return code
-
-
-def _interrupt_ends_the_spin(_signum, _frame):
-    """SIGINT, after rclpy's handler has shut the context down (so the spin ends)."""
-    rclpy.try_shutdown()
 
 
 if __name__ == '__main__':

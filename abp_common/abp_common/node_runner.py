@@ -53,13 +53,8 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     `config_errors`: extra exception types that mean a bad configuration (besides
     ValueError and rclpy's InvalidParameterValueException). `make_executor` is called
     after rclpy.init (an executor needs the context)."""
-    # rclpy's own SIGINT handler shuts the context down, which ends the spin; Python's
-    # default handler would then also raise KeyboardInterrupt wherever the main thread
-    # is, even inside a finalizer (`Exception ignored in: Future.__del__`), where nothing
-    # can catch it. The spin's end is enough: the interrupt itself is not raised.
-    signal.signal(signal.SIGINT, _interrupt_ends_the_spin)
     retire_ports_of_killed_participants(name)
-    rclpy.init(args=args)
+    init_rclpy_with_quiet_interrupt(args)
     node = None
     try:
         node = make_node()
@@ -90,9 +85,32 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     return 0
 
 
-def _interrupt_ends_the_spin(_signum, _frame):
-    """SIGINT, after rclpy's handler has shut the context down (so the spin ends)."""
-    rclpy.try_shutdown()
+_rclpy_handles_interrupts = False  # set once rclpy.init has installed rclpy's SIGINT handler
 
 
-__all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'run_node']
+def init_rclpy_with_quiet_interrupt(args):
+    """rclpy.init(args), with a Python SIGINT handler under rclpy's: Ctrl-C ends the spin
+    without a KeyboardInterrupt.
+
+    rclpy's own handler (installed by rclpy.init, chaining to Python's) shuts the context
+    down, which ends the spin. Python's default handler would also raise KeyboardInterrupt
+    wherever the main thread is, even inside a finalizer (`Exception ignored in:
+    Future.__del__`), where nothing can catch it. So Python's handler does nothing once
+    rclpy handles the signal, and above all takes no lock: Python runs it between two
+    bytecodes of the main thread, which may hold the context's lock at that moment
+    (inside `Context.ok()`); a handler that called rclpy.try_shutdown() waited on that
+    lock for ever (a bag recorder that never closed its bag). Before rclpy.init has
+    returned, Ctrl-C interrupts as usual."""
+    global _rclpy_handles_interrupts
+    _rclpy_handles_interrupts = False
+    signal.signal(signal.SIGINT, _interrupt)
+    rclpy.init(args=args)
+    _rclpy_handles_interrupts = True
+
+
+def _interrupt(signum, frame):
+    if not _rclpy_handles_interrupts:
+        signal.default_int_handler(signum, frame)
+
+
+__all__ = ['CONFIGURATION_ERROR_EXIT_CODE', 'init_rclpy_with_quiet_interrupt', 'run_node']

@@ -9,6 +9,8 @@ publish. An abp node's subscriptions take raw bytes and convert them in Python
 load, and a malformed message end the same way: in the drop. (A plain rclpy subscription
 never sees such bytes: Fast DDS drops them in its take, silently.)"""
 
+import subprocess
+
 import pytest
 
 pytest.importorskip('rclpy')
@@ -88,3 +90,37 @@ def test_a_message_rclpy_cannot_convert_is_dropped_and_a_callback_error_is_not(
         assert proc.returncode == 0, out
     else:
         assert proc.returncode != 0 and 'ValueError: a bug in the callback' in out, out
+
+
+# Ctrl-C arrives while the main thread holds the context's lock: Python runs its SIGINT
+# handler between two bytecodes of whatever the main thread is doing, which in a spinning
+# node is often `Context.ok()` (the executor's loop condition). A shutdown callback runs
+# under that lock too, so raising SIGINT in one puts the handler exactly there. A handler
+# that took the lock (rclpy.try_shutdown) never returned: a bag recorder hung on Ctrl-C.
+INTERRUPTED_UNDER_THE_LOCK = """
+import signal
+
+import rclpy
+
+from abp_common.node_runner import init_rclpy_with_quiet_interrupt
+
+init_rclpy_with_quiet_interrupt(None)
+context = rclpy.get_default_context()
+context.on_shutdown(lambda: signal.raise_signal(signal.SIGINT))
+context.shutdown()
+print('shut down; ok:', rclpy.ok(), flush=True)
+"""
+
+
+def test_ctrl_c_while_the_context_lock_is_held_neither_hangs_nor_raises(tmp_path,
+                                                                       ros_processes):
+    script = tmp_path / 'interrupted.py'
+    script.write_text(INTERRUPTED_UNDER_THE_LOCK)
+    proc = ros_processes.start_python(script)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        pytest.fail('the SIGINT handler waited on the context lock its own thread held')
+    out = ros_processes.transcript(proc)
+    assert proc.returncode == 0 and 'shut down; ok: False' in out, out
+    assert 'KeyboardInterrupt' not in out, out

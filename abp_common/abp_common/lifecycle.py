@@ -9,11 +9,13 @@ implements two methods:
 
 The base class records what each of them created (endpoints, timers, action servers and
 clients, parameters, parameter callbacks) and undoes it on the way back: deactivate
-destroys what activate opened (so an inactive node publishes and serves nothing), cleanup
-what configure made (so configure can run again). Optional hooks `deactivate()` and
-`cleanup()` run first. The node keeps that record itself, through rclpy's public factory
-and destroy methods (`entity_registry.EntityRegistry`), and tracks its lifecycle state
-itself (`state_label()`): rclpy's private lists and state machine are not read. Its
+destroys what activate opened (so an inactive node publishes and serves nothing),
+cleanup what configure made (so configure can run again); an input node
+(`create_input_node()`: high-rate subscriptions on a thread of their own) is closed the
+same way. Optional hooks `deactivate()` and `cleanup()` run first. The node keeps that
+record itself, through rclpy's public factory and destroy methods
+(`entity_registry.EntityRegistry`), and tracks its lifecycle state itself
+(`state_label()`): rclpy's private lists and state machine are not read. Its
 subscriptions drop a message rclpy cannot convert instead of ending the node
 (`tolerant_subscriptions`).
 
@@ -43,6 +45,7 @@ from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_srvs.srv import Trigger
 
 from .entity_registry import EntityRegistry
+from .input_node import InputNode
 from .lifecycle_report import endpoint_report
 from .tolerant_subscriptions import TolerantSubscriptions
 
@@ -197,17 +200,24 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
             self.get_logger().error(f'{what or hook.__name__} failed: '
                                     f'{type(error).__name__}: {error}')
 
-    # -- status for the lifecycle manager --------------------------------------------
-    def helper_subscriptions(self):
-        """Subscriptions this node made on a helper node of its own (with its own executor)
-        that its endpoint report must include; none by default."""
-        return ()
+    # -- input nodes -------------------------------------------------------------------
+    def create_input_node(self):
+        """An `input_node.InputNode` for high-rate subscriptions, with its own thread. Like
+        any entity it is undone with the phase that made it (activate's is closed at
+        deactivate), and its subscriptions are in this node's endpoint report."""
+        return self._note(InputNode.close, InputNode(self))
 
+    def _input_node_subscriptions(self):
+        return [subscription for phase in ('configure', 'activate')
+                for entity in self.made_in(phase) if isinstance(entity, InputNode)
+                for subscription in entity.subscriptions]
+
+    # -- status for the lifecycle manager --------------------------------------------
     def endpoint_report(self):
         return endpoint_report(
             self.state_label(), self.instance,
             ((s.topic_name, s.get_publisher_count())
-             for s in (*self.subscriptions, *self.helper_subscriptions())),
+             for s in (*self.subscriptions, *self._input_node_subscriptions())),
             ((p.topic_name, p.get_subscription_count()) for p in self.publishers))
 
     def _on_endpoint_status(self, request, response):

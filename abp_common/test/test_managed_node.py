@@ -5,8 +5,9 @@ rclpy's lifecycle services report.
 The sample node makes one of every kind of entity: in configure parameters (one
 read-only), a parameter callback and a client; in activate a publisher, a subscription, a
 service, a timer, a guard condition, an action server it keeps no reference to and an
-action client. The node's public entity iterators (`publishers`, `waitables`, ...) are
-compared with what they held before each transition."""
+action client, and an input node (its own node and thread) with a subscription. The
+node's public entity iterators (`publishers`, `waitables`, ...) are compared with what
+they held before each transition."""
 
 import gc
 
@@ -54,6 +55,9 @@ class Sample(ManagedNode):
         self.create_guard_condition(lambda: None)
         ActionServer(self, Lift, '~/lift', lambda goal: Lift.Result())   # no reference kept
         self.lift_client = ActionClient(self, Lift, '~/other_lift')
+        self.inputs = self.create_input_node()
+        self.inputs.node.create_subscription(String, self.resolve_topic_name('~/fast_in'),
+                                             lambda msg: None, 10)
         if self.fail_in == 'activate':
             raise RuntimeError('activate broke')
 
@@ -130,9 +134,13 @@ def test_each_transition_undoes_what_its_counterpart_made(sample_node, tester, c
     assert added(configured, active) == ACTIVATE_MAKES
     assert any(isinstance(w, ActionServer) for w in node.waitables)
     assert node.state_label() == rclpy_state(tester, call_service) == 'active'
+    # The input node's subscription is the node's own input in the manager's report.
+    inputs = node.inputs
+    assert inputs.spinning and '/sample/fast_in' in node.endpoint_report()['inputs']
 
     assert node.trigger_deactivate() == SUCCESS
     assert entities(node) == configured
+    assert not inputs.spinning and '/sample/fast_in' not in node.endpoint_report()['inputs']
     assert not any(isinstance(w, (ActionServer, ActionClient)) for w in node.waitables)
     assert node.has_parameter('gain')
     assert node.state_label() == rclpy_state(tester, call_service) == 'inactive'
@@ -177,7 +185,7 @@ def test_a_failed_transition_undoes_what_it_made(sample_node, tester, call_servi
         assert node.trigger_configure() == SUCCESS
         configured = entities(node)
         assert node.trigger_activate() != SUCCESS
-        assert entities(node) == configured
+        assert entities(node) == configured and not node.inputs.spinning
         assert node.state_label() == rclpy_state(tester, call_service) == 'inactive'
         assert node.trigger_cleanup() == SUCCESS
         assert entities(node) == built

@@ -36,7 +36,6 @@ from abp_belief.model_set_config import MODEL_SET_SPECS, model_set_from_values
 from abp_common import input_checks, names, qos
 from abp_common.health import DIAGNOSTICS, NodeHealth, node_of_status
 from abp_common.input_checks import Rejected
-from abp_common.input_node import InputNode
 from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
@@ -71,7 +70,6 @@ class PlannerNode(ManagedNode):
 
     def __init__(self, **kwargs):
         super().__init__('planner', **kwargs)
-        self._inputs = None   # abp_common.input_node.InputNode while active
 
     def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + PLANNER_SPECS)
@@ -130,24 +128,15 @@ class PlannerNode(ManagedNode):
             callback_group=self._group)
         # The 10 Hz observations and every node's /diagnostics on an input node of their
         # own (abp_common.input_node: this node's multi-threaded executor woke ~20 times a
-        # message); its one thread keeps each topic in order. Last: nothing after it can
-        # fail and leave its thread running (closed at deactivate).
-        self._inputs = InputNode(self)
+        # message); its one thread keeps each topic in order. Closed at deactivate.
+        inputs = self.create_input_node().node
         self._observation_sub = self.health.subscribe(
             AspectObservation, names.ASPECT_OBSERVATION, self._on_observation, qos.RELIABLE,
-            node=self._inputs.node)
+            node=inputs)
         # The belief node's own account, quoted when an episode gets no observation.
-        self._inputs.node.create_subscription(
+        inputs.create_subscription(
             DiagnosticArray, self.resolve_topic_name(DIAGNOSTICS), self._on_diagnostics, 10)
         self.get_logger().info(self._ready_line)
-
-    def deactivate(self):
-        if self._inputs is not None:
-            self._inputs.close()
-            self._inputs = None
-
-    def helper_subscriptions(self):
-        return self._inputs.subscriptions if self._inputs is not None else ()
 
     def _param(self, name):
         return self.get_parameter(name).value

@@ -29,7 +29,6 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from abp_common import base_command, input_checks, names
 from abp_common.input_checks import Rejected
-from abp_common.input_node import InputNode
 from abp_common.qos import RELIABLE
 from abp_common.server_handshake import ask_action_server
 from abp_description.frames import yaw_of_quaternion
@@ -52,28 +51,20 @@ def duration_msg(seconds):
 
 class RobotInputs:
     """The robot's sensor topics and the cube estimate into `context.state` (a RobotState;
-    `context`: a SkillsContext), on the skills node's own input node (abp_common.input_node:
-    at sensor rates, the skills node's ~60 entities made its executor's wake-ups most of
-    its CPU). `close()` at deactivate."""
+    `context`: a SkillsContext), subscribed on `input_node`, the node of the skills node's
+    InputNode (abp_common.input_node: at sensor rates, the skills node's ~60 entities made
+    its executor's wake-ups most of its CPU)."""
 
-    def __init__(self, context):
+    def __init__(self, context, input_node):
         self.ctx = context
         health = context.health
         self._observation_stamps = health.stamp_check()
-        self._inputs = InputNode(context.ros)
-        node = self._inputs.node
+        node = input_node
         health.subscribe(JointState, names.JOINT_STATES, self._on_joint_states, RELIABLE,
                          node=node)
         health.subscribe(Odometry, names.ODOM, self._on_odom, RELIABLE, node=node)
         health.subscribe(AspectObservation, names.ASPECT_OBSERVATION, self._on_observation,
                          RELIABLE, node=node)
-
-    @property
-    def subscriptions(self):
-        return self._inputs.subscriptions
-
-    def close(self):
-        self._inputs.close()
 
     def _on_joint_states(self, msg):
         input_checks.joint_state(msg)

@@ -123,7 +123,8 @@ class SkillsNode(ManagedNode):
                             else None)
         ctx.claim.announce()
         # Last: nothing after it can fail and leave its thread running (close: deactivate).
-        self.inputs = RobotInputs(ctx)
+        # Made in activate, so closed at deactivate (ManagedNode.create_input_node).
+        self.inputs = RobotInputs(ctx, self.create_input_node().node)
         hosted = [self.resolve_topic_name(names.skill_action(s)) for s in skills]
         if self.feasibility is not None:
             hosted.append(self.resolve_service_name(names.CHECK_FEASIBILITY))
@@ -131,13 +132,6 @@ class SkillsNode(ManagedNode):
 
     def deactivate(self):
         _stop_robot(self)
-        if self.inputs is not None:
-            self.inputs.close()
-            self.inputs = None
-
-    def helper_subscriptions(self):
-        # The sensor topics are on the inputs' own node (robot_topics.RobotInputs).
-        return self.inputs.subscriptions if self.inputs is not None else ()
 
     def _on_skills_state(self, msg):
         input_checks.skills_state(msg.data)     # Rejected: not a skills state

@@ -6,6 +6,7 @@ import rclpy
 from rclpy.callback_groups import ReentrantCallbackGroup
 
 from abp_common.health import NodeHealth
+from abp_common.input_node import InputNode
 from abp_common.parameters import declare_all
 from abp_description.kinematics import RobotKinematics
 from abp_msgs.srv import CheckFeasibility
@@ -30,10 +31,13 @@ def test_the_helpers_run_on_a_context_of_a_plain_rclpy_node():
             param=lambda name: node.get_parameter(name).value, kin=kin,
             state=RobotState(lambda: 0.0, kin.q_from_mapping), clock_rate=ClockRate(),
             motion_planner=SkillPlanner(RobotKinematics(), config_from_values(values)))
-        RobotInputs(ctx)
+        inputs = InputNode(node)
+        RobotInputs(ctx, inputs.node)
         ctx.commands = RobotCommands(ctx)
         service = FeasibilityService(ctx)
         topics = {name for name, _ in node.get_topic_names_and_types()}
+        assert {s.topic_name for s in inputs.subscriptions} == \
+            {'/joint_states', '/odom', '/abp/aspect_observation'}
         assert {'/joint_states', '/odom', '/cmd_vel'} <= topics, topics
 
         # No cube estimate yet: every action infeasible, saying why.
@@ -51,6 +55,7 @@ def test_the_helpers_run_on_a_context_of_a_plain_rclpy_node():
         expected = [bool(planner.feasibility(a, home, ctx.cube()[0])[0]) for a in ACTIONS]
         assert list(answer.feasible) == expected
         assert any(expected), 'a cube 45 cm ahead: some skill must be feasible'
+        inputs.close()
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)

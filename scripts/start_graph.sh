@@ -22,6 +22,8 @@
 #                        corrected); a models file carries its own tables
 #   --planner MODE       random | abp | abp2 | abp3 | cost                   (default cost)
 #   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
+#   --dictionary D       the cubes' ArUco dictionary, an OpenCV name: the detector reads it
+#                        and the sim draws it, e.g. DICT_APRILTAG_36h11     (default DICT_4X4_50)
 #   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
 #   --namespace NS       run every node under the namespace /NS (topics, services, actions)
 #   --record DIR         record the graph's topics to a rosbag2 (MCAP) bag in DIR
@@ -68,11 +70,11 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
-tables=""
+tables=""; dictionary=""
 respawn=1; serve=0; record_images=false; one_process=0; part=all
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
 wrong_action_fraction=""; operator_silent=false
-usage() { sed -n '2,65p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,67p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -88,6 +90,7 @@ while [ $# -gt 0 ]; do
     --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a value}"; shift 2 ;;
+    --dictionary) dictionary="${2:?--dictionary needs a value}"; shift 2 ;;
     --params) params="${2:?--params needs a file}"; shift 2 ;;
     --record) record="${2:?--record needs a directory}"; shift 2 ;;
     --record-images) record_images=true; shift ;;
@@ -152,6 +155,8 @@ namespace="${namespace#/}"; namespace="${namespace%/}"
 
 # Model-set parameters shared by every node that loads the model set: one `/**:` file.
 model_yaml=(seed "$seed" transition_rules "$tables")
+# Every node's parameters (/**): the nodes that draw or read tags declare `dictionary`.
+[ -n "$dictionary" ] && model_yaml+=(dictionary "$dictionary")
 case "$models" in
   robot|full|visual) model_yaml+=(model_set "$models") ;;
   random:*) [[ "${models#random:}" =~ ^[0-9]+$ ]] || die "--models random:N needs a number N"

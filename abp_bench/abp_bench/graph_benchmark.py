@@ -146,6 +146,9 @@ def parse_args(argv):
     parser.add_argument('--planner', default='cost', help='as start_graph.sh --planner')
     parser.add_argument('--seed', type=int, default=0, help='model-set seed')
     parser.add_argument('--faults', action='store_true')
+    parser.add_argument('--dictionary', default=None,
+                        help="the cubes' ArUco dictionary, as start_graph.sh --dictionary "
+                             "(default: the nodes' own, DICT_4X4_50)")
     parser.add_argument('--one-process', action='store_true',
                         help='as start_graph.sh --one-process: the nodes in one process')
     parser.add_argument('--speedup', type=float, default=10.0)
@@ -270,6 +273,8 @@ def run_episode(args, index, workdir, params_file, bag=None):
         cmd += ['--no-build']
     if args.one_process:
         cmd += ['--one-process']
+    if args.dictionary:
+        cmd += ['--dictionary', args.dictionary]
     if bag is not None:
         cmd += ['--record', str(bag)]
     started = time.monotonic()
@@ -369,7 +374,8 @@ def summarise(results, latencies, observation_latencies, args):
            f", {'with' if args.faults else 'without'} fault injection, speed-up "
            f'{args.speedup:g}')
     title = (f"{where}, {args.models} models ({tables_of(args)} tables), "
-             f"planner {args.planner}{sim}{', one process' if args.one_process else ''}")
+             f"planner {args.planner}{sim}{', one process' if args.one_process else ''}"
+             f"{f', {args.dictionary} tags' if args.dictionary else ''}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]
     return '\n'.join(lines)

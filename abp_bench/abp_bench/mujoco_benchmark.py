@@ -346,12 +346,13 @@ class SceneMaker:
     """Random scenes in one MujocoWorld: qpos of robot and cube set directly (no physics)."""
 
     def __init__(self, kin, named_postures, width=640, height=480, seed=0,
-                 cube_centre=(0.0, 0.0)):
+                 cube_centre=(0.0, 0.0), dictionary='DICT_4X4_50'):
         from abp_sim_bridge.mujoco_scene import BASE_JOINTS, CUBE_BODY, mujoco
         self.mujoco = mujoco
         self.kin = kin
         self.postures = named_postures
-        self.world = make_world(kin, named_postures['home'], width=width, height=height)
+        self.world = make_world(kin, named_postures['home'], width=width, height=height,
+                                tag_dictionary=dictionary)
         m = self.world.model
         self.model = m
         self.width, self.height = width, height
@@ -507,12 +508,13 @@ def distance_bucket(distance, edges=DISTANCE_EDGES):
 
 
 def recall_benchmark(kin, named_postures, scenes=240, seed=0, width=640, height=480,
-                     max_view_angle_deg=70.0, edges=DISTANCE_EDGES):
-    """Render `scenes` random scenes (camera-to-cube distance stratified over `edges`),
-    detect, and return one record per face plus per-frame render and detect times."""
+                     max_view_angle_deg=70.0, edges=DISTANCE_EDGES, dictionary='DICT_4X4_50'):
+    """Render `scenes` random scenes (camera-to-cube distance stratified over `edges`)
+    of a cube whose tags are of the ArUco `dictionary`, detect them with that dictionary,
+    and return one record per face plus per-frame render and detect times."""
     from abp_perception.detector import TagDetector
-    maker = SceneMaker(kin, named_postures, width, height, seed)
-    detector = TagDetector(maker.K, None, 'DICT_4X4_50', maker.tag_edge)
+    maker = SceneMaker(kin, named_postures, width, height, seed, dictionary=dictionary)
+    detector = TagDetector(maker.K, None, dictionary, maker.tag_edge)
     records, render_ms, detect_ms, skipped, wrong_ids, out_of_view = [], [], [], 0, 0, 0
     spans = list(zip(edges[:-1], edges[1:]))
     try:
@@ -557,7 +559,7 @@ def recall_benchmark(kin, named_postures, scenes=240, seed=0, width=640, height=
     return {'records': records, 'render_ms_median': _median(render_ms),
             'detect_ms_median': _median(detect_ms), 'frames': len(render_ms),
             'skipped_scenes': skipped, 'cube_out_of_view': out_of_view,
-            'wrong_ids': wrong_ids, 'width': width, 'height': height,
+            'wrong_ids': wrong_ids, 'width': width, 'height': height, 'dictionary': dictionary,
             'max_view_angle_deg': max_view_angle_deg, 'edges': list(edges)}
 
 
@@ -655,7 +657,8 @@ def print_camera(cam, view, out=None):
 
 def print_recall(rec, summary, out=None):
     out = out or sys.stdout
-    print(f'\n## Tag recall on MuJoCo frames ({rec["width"]}x{rec["height"]}, '
+    print(f'\n## Tag recall on MuJoCo frames ({rec["dictionary"]} tags, '
+          f'{rec["width"]}x{rec["height"]}, '
           f'{rec["frames"]} frames, TagDetector with the scaled calibrated K; visible: face '
           f'within {rec["max_view_angle_deg"]:.0f} deg of the line of sight and inside the '
           f'image; unhidden: no ray to a {GRID}x{GRID} grid over the face blocked)\n',
@@ -776,6 +779,9 @@ def main(argv=None) -> int:
                         help='deg between a face normal and the line of sight for a tag to '
                              'count as visible')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--dictionary', default='DICT_4X4_50',
+                        help="the cube's ArUco dictionary in the recall scenes (OpenCV name, "
+                             'e.g. DICT_APRILTAG_36h11; default DICT_4X4_50)')
     parser.add_argument('--skip', nargs='*', default=(),
                         choices=('physics', 'camera', 'recall'), help='sections to skip')
     parser.add_argument('--cpu', type=int, default=None,
@@ -816,7 +822,7 @@ def main(argv=None) -> int:
     if 'recall' not in args.skip and args.scenes > 0:
         width, height = args.resolution
         rec = recall_benchmark(kin, named, args.scenes, args.seed, width, height,
-                               args.max_view_angle)
+                               args.max_view_angle, dictionary=args.dictionary)
         summary = summarise_recall(rec)
         results['recall'] = {k: v for k, v in rec.items() if k != 'records'}
         results['recall_summary'] = summary

@@ -25,7 +25,7 @@ from abp_common.param_spec import (
 from abp_common.param_spec import defaults as spec_defaults
 from abp_description.robot_profile import PROFILE_SPEC
 
-from .flat_renderer import ImageEffects
+from .flat_renderer import DEFAULT_DICTIONARY, ImageEffects, tag_dictionary
 from .rules_contact import ContactParams
 from .rules_physics import Cube, Failures
 from .rules_world import SimSettings
@@ -36,6 +36,13 @@ SEED_RANGE = (0, 2**31 - 1)
 # `/**:` block of abp.yaml sets both). Here they are not read-only: like every world
 # parameter, a new model set takes effect at the next ~/reset_world.
 MODEL_SET_SPECS = tuple(replace(p, read_only=False) for p in POPULATION_SPECS)
+
+# The scripted operator's world draws the cube too (read-only there).
+DICTIONARY_SPEC = ParamSpec(
+    'dictionary', STRING, DEFAULT_DICTIONARY, 'ArUco dictionary (OpenCV name, e.g. '
+    'DICT_APRILTAG_36h11) of the tags drawn on the cube and the distractors; the '
+    "artag_detector's parameter of the same name must match (start_graph.sh --dictionary "
+    'sets both).')
 
 WORLDS = ('rules', 'mujoco')
 MUJOCO_ONLY = ' (world mujoco only)'
@@ -100,6 +107,7 @@ PARAMETERS = (
     ParamSpec('cube_size', DOUBLE, 0.10, 'Cube edge, m.', (0.02, 0.5)),
     ParamSpec('tag_size', DOUBLE, 0.08, 'Tag (black square) edge, m; smaller than cube_size.',
               (0.005, 0.5)),
+    DICTIONARY_SPEC,
     ParamSpec('mass_offset', DOUBLE, 0.025, 'Centre of mass offset towards the heavy face, m '
               '(less than half the edge).', (0.0, 0.25)),
     ParamSpec('cube_x', DOUBLE, 0.40, 'Initial cube centre x in odom, m (the robot starts at '
@@ -212,6 +220,7 @@ class CameraConfig:
     tag_size: float
     cube_size: float
     p_missed_tag: float = _BY_NAME['p_missed_tag'].default
+    dictionary: str = DEFAULT_DICTIONARY
 
 
 def _default(name):
@@ -267,6 +276,18 @@ def check_speedup(value):
     if not (np.isfinite(value) and 0.0 < value <= 100.0):
         raise ValueError(f'speedup must be > 0 and <= 100, got {value}')
     return value
+
+
+def check_dictionary(name, face_tags, distractors):
+    """ValueError unless `name` is an ArUco dictionary that holds every tag id drawn."""
+    try:
+        _, size = tag_dictionary(name)
+    except ValueError as err:
+        raise ValueError(f'dictionary: {err}') from err
+    drawn = [int(t) for t in face_tags if t >= 0] + [d.tag_id for d in distractors]
+    if max(drawn, default=-1) >= size:
+        raise ValueError(f'dictionary: {name} has {size} tag ids, but the hidden cube and '
+                         f'the distractors use ids up to {max(drawn)}')
 
 
 def build(values):
@@ -325,10 +346,11 @@ def build(values):
                            noise_std=float(v['camera_noise_std']))
     camera = CameraConfig(camera_rate, v['camera_encoding'], effects,
                           int(v['camera_supersample']), int(v['camera_noise_bank']), tag_size,
-                          cube_size, float(v['p_missed_tag']))
+                          cube_size, float(v['p_missed_tag']), str(v['dictionary']))
     distractors = make_distractors(int(v['distractors']), int(v['distractor_seed']),
                                    cube.position[:2], tag_size, hidden.n_tags,
                                    avoid=hidden.face_tags)
+    check_dictionary(camera.dictionary, hidden.face_tags, distractors)
     offsets = tuple(float(x) for x in _array(v['joint_offsets']))
     if offsets and len(offsets) != 13:
         raise ValueError('joint_offsets must give 13 angles (URDF joint order, as '

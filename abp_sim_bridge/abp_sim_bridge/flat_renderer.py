@@ -156,6 +156,19 @@ class Distractor:
     margin: float = 0.125           # white border, as a fraction of `size` per side
 
 
+DEFAULT_DICTIONARY = 'DICT_4X4_50'
+
+
+def tag_dictionary(name):
+    """(OpenCV id, number of ids) of the predefined ArUco dictionary `name` (an OpenCV
+    name such as 'DICT_4X4_50' or 'DICT_APRILTAG_36h11'); ValueError if there is none."""
+    if not (isinstance(name, str) and name.startswith('DICT_') and hasattr(cv2.aruco, name)):
+        raise ValueError(f'unknown ArUco dictionary {name!r} (an OpenCV name such as '
+                         f'{DEFAULT_DICTIONARY} or DICT_APRILTAG_36h11)')
+    dictionary_id = int(getattr(cv2.aruco, name))
+    return dictionary_id, len(cv2.aruco.getPredefinedDictionary(dictionary_id).bytesList)
+
+
 class ArcubeRenderer:
     """Renders the camera image of an ARcube scene.
 

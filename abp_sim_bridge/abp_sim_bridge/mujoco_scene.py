@@ -16,7 +16,8 @@ plus these MJCF additions made with `mujoco.MjSpec`:
   The hands are the URDF's balls (0.035 m), with their own (pad) friction.
 - **ARcube**: a free body with a box of edge `edge`, uniform mass or a heavy inner slab
   near one body face (`heavy_mass_ratio` of the total mass), face tags as textured
-  quads made with `cv2.aruco` (DICT_4X4_50) at start, in renderer.py's tag axes.
+  quads made with `cv2.aruco` (the cube's `dictionary`, DICT_4X4_50 by default) at start,
+  in renderer.py's tag axes.
 - **Floor**, two lights, and the head camera `head_camera` on `camera_link` with the
   calibrated vertical field of view. MuJoCo cameras look along -z with y up; the ROS
   optical frame looks along +z with y down: the camera frame is the optical frame turned
@@ -39,7 +40,7 @@ from abp_belief.cube import FACE_NORMALS  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.robot_profile import load_profile  # noqa: E402
 
-from .flat_renderer import FACE_TAG_AXES  # noqa: E402
+from .flat_renderer import DEFAULT_DICTIONARY, FACE_TAG_AXES, tag_dictionary  # noqa: E402
 
 BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 CUBE_BODY = 'arcube'
@@ -50,7 +51,6 @@ HAND_GEOM_SUFFIX = '_ball'   # a hand body's collision pad: '<hand frame>_ball'
 # Collision bits: robot geoms (ROBOT) touch floor and cube (WORLD) but never each other.
 WORLD_BIT, ROBOT_BIT = 1, 2
 COLLISION_GROUP = 3  # collision copies of the URDF geoms: not drawn by default
-TAG_DICTIONARY = cv2.aruco.DICT_4X4_50
 
 # Servo gains per joint, (kp N m/rad, kv N m s/rad, armature kg m^2), come from the robot
 # profile's simulation.servo_gains: for the uBot-6 stiff enough that the hands follow the
@@ -74,6 +74,7 @@ class CubeSpec:
     heavy_mass_ratio: float = 0.625       # slab mass / total mass (offset 0.025 m)
     heavy_slab_thickness: float = 0.02    # m; the slab lies against the inside of the face
     friction: float = 0.5                 # sliding friction on the floor and its default
+    dictionary: str = DEFAULT_DICTIONARY  # ArUco dictionary of its tags (and distractors')
 
     def __post_init__(self):
         self.position = np.asarray(self.position, dtype=float).reshape(3)
@@ -90,6 +91,10 @@ class CubeSpec:
             raise ValueError('heavy_slab_thickness must be in (0, edge / 2)')
         if not self.friction > 0:
             raise ValueError('cube friction must be > 0')
+        _, size = tag_dictionary(self.dictionary)
+        if max(self.face_tags) >= size:
+            raise ValueError(f'face tag ids must be below {size} in {self.dictionary}, got '
+                             f'{self.face_tags}')
 
     @property
     def half(self):
@@ -132,14 +137,14 @@ class SceneSettings:
             raise ValueError('hand_torsional_friction must be >= 0')
 
 
-def tag_texture(tag_id, edge, tag_edge, pixels=256):
-    """RGB image of one face: white square with the ArUco tag centred (tag_id < 0: blank).
-    Row 0 is the top of the tag image."""
+def tag_texture(tag_id, edge, tag_edge, pixels=256, dictionary=DEFAULT_DICTIONARY):
+    """RGB image of one face: white square with the tag `tag_id` of the ArUco `dictionary`
+    (an OpenCV name) centred (tag_id < 0: blank). Row 0 is the top of the tag image."""
     img = np.full((pixels, pixels), 255, np.uint8)
     if tag_id >= 0:
         side = int(round(pixels * tag_edge / edge))
-        dictionary = cv2.aruco.getPredefinedDictionary(TAG_DICTIONARY)
-        marker = cv2.aruco.generateImageMarker(dictionary, int(tag_id), side)
+        aruco = cv2.aruco.getPredefinedDictionary(tag_dictionary(dictionary)[0])
+        marker = cv2.aruco.generateImageMarker(aruco, int(tag_id), side)
         start = (pixels - side) // 2
         img[start:start + side, start:start + side] = marker
     return np.ascontiguousarray(np.repeat(img[:, :, None], 3, axis=2))
@@ -261,7 +266,7 @@ def _add_cube(spec, cube):
         axes = FACE_TAG_AXES[face]
         verts = corners @ axes[:, :2].T + (h + lift) * axes[:, 2]
         tex = spec.add_texture(name=f'arcube_tag_{face}', type=mujoco.mjtTexture.mjTEXTURE_2D)
-        image = tag_texture(int(tag), cube.edge, cube.tag_edge)
+        image = tag_texture(int(tag), cube.edge, cube.tag_edge, dictionary=cube.dictionary)
         tex.width, tex.height, tex.nchannel = image.shape[1], image.shape[0], 3
         tex.data = image.tobytes()
         mat = spec.add_material(name=f'arcube_face_{face}')
@@ -278,7 +283,7 @@ def _add_cube(spec, cube):
     return body
 
 
-def _add_distractors(spec, distractors):
+def _add_distractors(spec, distractors, dictionary):
     """Flat tags lying in the scene (flat_renderer.Distractor: tag centre pose in ArUco
     axes, tag size, white margin), visual only."""
     for k, tag in enumerate(distractors):
@@ -287,7 +292,7 @@ def _add_distractors(spec, distractors):
         pose = np.asarray(tag.pose, dtype=float)
         verts = corners @ pose[:3, :2].T + pose[:3, 3] + 0.0005 * pose[:3, 2]
         tex = spec.add_texture(name=f'distractor_{k}', type=mujoco.mjtTexture.mjTEXTURE_2D)
-        image = tag_texture(int(tag.tag_id), 2 * h, tag.size)
+        image = tag_texture(int(tag.tag_id), 2 * h, tag.size, dictionary=dictionary)
         tex.width, tex.height, tex.nchannel = image.shape[1], image.shape[0], 3
         tex.data = image.tobytes()
         mat = spec.add_material(name=f'distractor_{k}')
@@ -358,7 +363,7 @@ def build_spec(cube=None, settings=None, distractors=(), profile=None):
     floor.friction = [settings.floor_friction, 0.005, 0.0001]
     floor.contype, floor.conaffinity = WORLD_BIT, WORLD_BIT | ROBOT_BIT
     _add_cube(spec, cube)
-    _add_distractors(spec, distractors)
+    _add_distractors(spec, distractors, cube.dictionary)
     return spec
 
 

@@ -36,6 +36,7 @@ from abp_description import camera_intrinsics
 from abp_description.frames import se2_between, se2_compose, wrap_rad
 from abp_description.kinematics import RobotKinematics
 
+from .flat_renderer import DEFAULT_DICTIONARY
 from .joint_trajectory_follower import TrajectoryFollower
 from .mujoco_scene import (
     BASE_JOINTS,
@@ -119,6 +120,7 @@ class MujocoSettings:
     hand_friction: float = 1.0
     hand_torsional_friction: float = 0.001   # m
     tag_edge: float = 0.08                   # m
+    tag_dictionary: str = DEFAULT_DICTIONARY  # ArUco (OpenCV name) of the cube's tags
     # Faults as perturbations of physical quantities.
     friction_scale: float = 1.0              # multiplies every friction coefficient
     servo_stiffness_scale: float = 1.0       # multiplies the arm and torso servo gains
@@ -218,7 +220,8 @@ class MujocoWorld(CommandInputs):
         self.cube_spec = CubeSpec(
             position=cube.position, rotation=cube.rotation, face_tags=tuple(face_tags),
             edge=cube.edge, tag_edge=s.tag_edge, mass=s.cube_mass, heavy_face=cube.heavy_face,
-            heavy_mass_ratio=s.heavy_mass_ratio, friction=s.cube_friction * s.friction_scale)
+            heavy_mass_ratio=s.heavy_mass_ratio, friction=s.cube_friction * s.friction_scale,
+            dictionary=s.tag_dictionary)
         self.scene_settings = SceneSettings(
             timestep=self.dt / self.substeps,
             hand_friction=s.hand_friction * s.friction_scale,

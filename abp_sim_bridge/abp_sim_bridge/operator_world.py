@@ -21,6 +21,7 @@ from abp_belief.cube import STATE_ROTATIONS, state_of
 from abp_description import camera_intrinsics
 from abp_description.frames import rot_z_deg
 
+from .flat_renderer import DEFAULT_DICTIONARY
 from .mujoco_scene import CUBE_BODY, CubeSpec, _add_cube, add_room, mujoco, rendered_as
 from .mujoco_world import EGL_HINT, discrete_state
 
@@ -86,7 +87,7 @@ class OperatorWorld:
 
     def __init__(self, hidden, camera_pose, *, cube_xy=None, up_face=4, yaw_deg=0.0,
                  edge=0.10, tag_edge=0.08, cube_mass=0.75, heavy_mass_ratio=0.625,
-                 width=None, height=None):
+                 width=None, height=None, dictionary=DEFAULT_DICTIONARY):
         self.hidden = hidden
         self.edge = float(edge)
         self.camera_pose = optical_pose(camera_pose)
@@ -99,7 +100,7 @@ class OperatorWorld:
         self.cube_spec = CubeSpec(position=(*self.home_xy, self.edge / 2),
                                   face_tags=tuple(hidden.face_tags), edge=self.edge,
                                   tag_edge=tag_edge, mass=cube_mass, heavy_face=heavy,
-                                  heavy_mass_ratio=heavy_mass_ratio)
+                                  heavy_mass_ratio=heavy_mass_ratio, dictionary=dictionary)
         self.model = self._build()
         self.data = mujoco.MjData(self.model)
         self._cube_qadr = self.model.joint(

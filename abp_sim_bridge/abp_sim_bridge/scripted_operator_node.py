@@ -32,6 +32,7 @@ import termios
 import threading
 import time
 import traceback
+from dataclasses import replace
 
 import numpy as np
 import rclpy
@@ -56,6 +57,7 @@ from abp_description.robot_profile import PROFILE_SPEC, load_profile
 from abp_msgs.msg import SimGroundTruth
 
 from . import sim_messages
+from .config import DICTIONARY_SPEC, check_dictionary
 from .scenario import choose_hidden_model
 from .scripted_operator import PromptReader, RequestUnclear, ScriptedPerson, parse_request
 
@@ -66,6 +68,7 @@ TERMINAL_SPEC = ParamSpec(
     read_only=True)
 SCRIPTED_SPECS = (
     *POPULATION_SPECS, TRANSITION_RULES_SPEC, PROFILE_SPEC,
+    replace(DICTIONARY_SPEC, read_only=True),
     ParamSpec('model_index', INT, -1, 'Index of the hidden model in the model set; -1 = drawn '
               'with cube_seed.', (-1, 10**7), read_only=True),
     ParamSpec('cube_seed', INT, 0, 'Seed of the random choice of the hidden model.',
@@ -142,8 +145,9 @@ class ScriptedOperatorNode(ManagedNode):
         self.hidden = choose_hidden_model(
             (), 0, v['model_set'], v['model_set_size'], v['n_tags'], v['seed'],
             v['model_file'], v['model_index'], v['cube_seed'])
+        check_dictionary(v['dictionary'], self.hidden.face_tags, ())
         self.world = OperatorWorld(self.hidden, v['camera_pose'], up_face=v['cube_up_face'],
-                                   yaw_deg=v['cube_yaw'])
+                                   yaw_deg=v['cube_yaw'], dictionary=v['dictionary'])
         self.person = ScriptedPerson(
             # Seeded with the cube too: episodes of a benchmark (one seed, one cube each)
             # do not repeat one pattern of wrong actions.

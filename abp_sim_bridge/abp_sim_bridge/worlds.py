@@ -27,7 +27,7 @@ import numpy as np
 
 from abp_description.kinematics import look_at_world
 
-from .flat_renderer import ArcubeRenderer
+from .flat_renderer import ArcubeRenderer, tag_dictionary
 from .rules_world import make_rules_world
 
 
@@ -50,7 +50,8 @@ class FlatCamera:
         cam = config.camera
         self.renderer = ArcubeRenderer(
             intrinsics.K, intrinsics.width, intrinsics.height, edge=cam.cube_size,
-            tag_edge=cam.tag_size, encoding=cam.encoding, effects=cam.effects,
+            tag_edge=cam.tag_size, dictionary=tag_dictionary(cam.dictionary)[0],
+            encoding=cam.encoding, effects=cam.effects,
             supersample=cam.supersample, seed=config.failure_seed, noise_bank=cam.noise_bank)
         self.encoding = cam.encoding
         self.distractors = config.distractors
@@ -163,6 +164,7 @@ def make_mujoco_world(config, kin, start_time_ns=0):
         heavy_mass_ratio=m.heavy_mass_ratio, cube_friction=m.cube_friction,
         floor_friction=m.floor_friction, hand_friction=m.hand_friction,
         hand_torsional_friction=m.hand_torsional_friction, tag_edge=config.camera.tag_size,
+        tag_dictionary=config.camera.dictionary,
         friction_scale=m.friction_scale, servo_stiffness_scale=m.servo_stiffness_scale,
         grasp_opening=m.grasp_opening, joint_offsets=m.joint_offsets, shadows=m.shadows,
         offsamples=m.offsamples, seed=config.failure_seed)

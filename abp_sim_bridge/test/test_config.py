@@ -1,5 +1,7 @@
 """The sim bridge's parameter table and its run-time change rule (no ROS)."""
 
+import pytest
+
 from abp_belief.model_set_config import POPULATION_SPECS
 from abp_common.param_spec import ParamSpec
 from abp_sim_bridge import config as cfg
@@ -33,3 +35,13 @@ def test_changes_are_refused_with_a_reason_naming_the_parameter():
     assert 'camera_rate' in cfg.refusal(values, {'camera_rate': 80.0})
     # Checked together with the current values: camera_rate may not exceed rate.
     assert 'camera_rate' in cfg.refusal({**values, 'camera_rate': 20.0}, {'rate': 15.0})
+
+
+def test_the_tag_dictionary_must_exist_and_hold_every_tag_drawn():
+    assert cfg.build({'dictionary': 'DICT_APRILTAG_36h11'}).camera.dictionary == \
+        'DICT_APRILTAG_36h11'
+    with pytest.raises(ValueError, match='dictionary: unknown ArUco dictionary'):
+        cfg.build({'dictionary': 'DICT_NOT_A_FAMILY'})
+    # AprilTag 16h5 has 30 ids: a cube with tag 40 cannot be drawn in it.
+    with pytest.raises(ValueError, match='DICT_APRILTAG_16h5 has 30 tag ids.*up to 40'):
+        cfg.build({'dictionary': 'DICT_APRILTAG_16h5', 'face_tags': [0, 1, 2, 3, 4, 40]})

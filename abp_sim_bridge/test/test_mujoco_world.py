@@ -121,6 +121,20 @@ def test_camera_image_shows_the_tags_the_state_predicts(kin):
     assert world.render(encoding='mono8').shape == (480, 640)
 
 
+@pytest.mark.parametrize('dictionary', ['DICT_APRILTAG_36h11', 'DICT_5X5_100'])
+def test_the_cube_wears_the_tags_of_the_dictionary_it_is_given(kin, dictionary):
+    world = make_world(kin, tag_dictionary=dictionary)
+    gray = world.render(encoding='mono8')
+
+    def read(name):
+        aruco = cv2.aruco.ArucoDetector(
+            cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, name)))
+        _, ids, _ = aruco.detectMarkers(gray)
+        return set() if ids is None else set(ids.ravel().tolist())
+    assert read(dictionary) == {FACE_TAGS[4], FACE_TAGS[1]}
+    assert read('DICT_4X4_50') == set()   # not the default tags any more
+
+
 def test_a_grasp_opening_moves_the_hands_but_not_the_joint_readings(kin):
     # A drawn grasp fault is a calibration error: the shoulder goes further out while its
     # encoder reads the command back, so the skills do not abort on arrival (they did, and

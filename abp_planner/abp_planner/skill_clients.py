@@ -124,9 +124,9 @@ class SkillClients:
         deadline = time.monotonic() + timeout_s
         next_check = time.monotonic() + SERVER_CHECK_S
         while not result_future.done():
-            if servers and time.monotonic() > next_check:
+            if time.monotonic() > next_check:
                 next_check = time.monotonic() + SERVER_CHECK_S
-                if not servers & self._status_publishers(skill):
+                if self._servers_gone(skill, servers):
                     return (False, f'skill server {names.skill_action(skill)} went away during '
                             'the skill (the goal is lost)', (clock.now() - started).to_msg())
             if cancel_requested() or time.monotonic() > deadline:
@@ -156,8 +156,13 @@ class SkillClients:
             result = wait_future(future, max(0.0, min(SERVER_CHECK_S, remaining)))
             if result is not None or remaining <= 0:
                 return result, False
-            if servers and not servers & self._status_publishers(skill):
+            if self._servers_gone(skill, servers):
                 return None, True
+
+    def _servers_gone(self, skill, servers):
+        """True when every one of `servers` (the skill's status publishers when its goal was
+        sent; none known: never gone) has left the graph."""
+        return bool(servers) and not servers & self._status_publishers(skill)
 
     def _status_publishers(self, skill):
         topic = names.absolute(names.skill_action(skill), self._node.get_namespace()) + \

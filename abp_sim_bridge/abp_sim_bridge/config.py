@@ -25,7 +25,7 @@ from abp_common.param_spec import (
 from abp_common.param_spec import defaults as spec_defaults
 from abp_description.robot_profile import PROFILE_SPEC
 
-from .flat_renderer import DEFAULT_DICTIONARY, ImageEffects, tag_dictionary
+from .flat_renderer import DEFAULT_DICTIONARY, ImageEffects, check_tag_ids
 from .rules_contact import ContactParams
 from .rules_physics import Cube, Failures
 from .rules_world import SimSettings
@@ -279,15 +279,12 @@ def check_speedup(value):
 
 
 def check_dictionary(name, face_tags, distractors):
-    """ValueError unless `name` is an ArUco dictionary that holds every tag id drawn."""
+    """ValueError, naming the parameter, unless `name` is an ArUco dictionary that holds
+    every tag id of the hidden cube and the distractors."""
     try:
-        _, size = tag_dictionary(name)
+        check_tag_ids(name, [*face_tags, *(d.tag_id for d in distractors)])
     except ValueError as err:
         raise ValueError(f'dictionary: {err}') from err
-    drawn = [int(t) for t in face_tags if t >= 0] + [d.tag_id for d in distractors]
-    if max(drawn, default=-1) >= size:
-        raise ValueError(f'dictionary: {name} has {size} tag ids, but the hidden cube and '
-                         f'the distractors use ids up to {max(drawn)}')
 
 
 def build(values):

@@ -169,6 +169,16 @@ def tag_dictionary(name):
     return dictionary_id, len(cv2.aruco.getPredefinedDictionary(dictionary_id).bytesList)
 
 
+def check_tag_ids(name, tag_ids):
+    """ValueError unless `name` is an ArUco dictionary (`tag_dictionary`) that holds every
+    id of `tag_ids` that is drawn (ids < 0 are blank faces)."""
+    _, size = tag_dictionary(name)
+    drawn = [int(t) for t in tag_ids if t >= 0]
+    if max(drawn, default=-1) >= size:
+        raise ValueError(f'{name} has {size} tag ids, but the tags to draw have ids up to '
+                         f'{max(drawn)}')
+
+
 class ArcubeRenderer:
     """Renders the camera image of an ARcube scene.
 

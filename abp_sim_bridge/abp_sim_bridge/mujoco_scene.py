@@ -40,7 +40,12 @@ from abp_belief.cube import FACE_NORMALS  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.robot_profile import load_profile  # noqa: E402
 
-from .flat_renderer import DEFAULT_DICTIONARY, FACE_TAG_AXES, tag_dictionary  # noqa: E402
+from .flat_renderer import (  # noqa: E402
+    DEFAULT_DICTIONARY,
+    FACE_TAG_AXES,
+    check_tag_ids,
+    tag_dictionary,
+)
 
 BASE_JOINTS = ('base_x', 'base_y', 'base_yaw')
 CUBE_BODY = 'arcube'
@@ -91,10 +96,7 @@ class CubeSpec:
             raise ValueError('heavy_slab_thickness must be in (0, edge / 2)')
         if not self.friction > 0:
             raise ValueError('cube friction must be > 0')
-        _, size = tag_dictionary(self.dictionary)
-        if max(self.face_tags) >= size:
-            raise ValueError(f'face tag ids must be below {size} in {self.dictionary}, got '
-                             f'{self.face_tags}')
+        check_tag_ids(self.dictionary, self.face_tags)
 
     @property
     def half(self):

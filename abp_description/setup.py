@@ -13,7 +13,7 @@ setup(
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/urdf', glob('urdf/*.urdf')),
         ('share/' + PACKAGE + '/config', glob('config/*.yaml')),
-        ('share/' + PACKAGE + '/profiles', glob('profiles/*.yaml')),
+        ('share/' + PACKAGE + '/profiles', glob('profiles/*.yaml') + glob('profiles/*.npz')),
         ('share/' + PACKAGE + '/rviz', glob('rviz/*.rviz')),
     ],
     install_requires=['setuptools'],

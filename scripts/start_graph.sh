@@ -22,6 +22,9 @@
 #                        corrected); a models file carries its own tables
 #   --planner MODE       random | abp | abp2 | abp3 | cost                   (default cost)
 #   --seed S             seed of the model set, the hidden cube and the sim  (default 0)
+#   --robot-profile FILE the robot's profile YAML (docs/PORTING.md), given to every node; its
+#                        learned ATG model set (`models:`) is the default of --models
+#                        (default: the uBot-6, abp_description/profiles/ubot6.yaml)
 #   --dictionary D       the cubes' ArUco dictionary, an OpenCV name: the detector reads it
 #                        and the sim draws it, e.g. DICT_APRILTAG_36h11     (default DICT_4X4_50)
 #   --params FILE        extra parameters YAML (/**/<node>: ros__parameters: ...), applied last
@@ -70,11 +73,11 @@ REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
 robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
-tables=""; dictionary=""
+tables=""; dictionary=""; robot_profile=""; models_given=0
 respawn=1; serve=0; record_images=false; one_process=0; part=all
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
 wrong_action_fraction=""; operator_silent=false
-usage() { sed -n '2,67p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,70p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -86,7 +89,8 @@ while [ $# -gt 0 ]; do
     --one-process) one_process=1; shift ;;
     --part) part="${2:?--part needs a value}"; shift 2 ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
-    --models) models="${2:?--models needs a value}"; shift 2 ;;
+    --models) models="${2:?--models needs a value}"; models_given=1; shift 2 ;;
+    --robot-profile) robot_profile="${2:?--robot-profile needs a file}"; shift 2 ;;
     --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
     --planner) planner="${2:?--planner needs a value}"; shift 2 ;;
     --seed) seed="${2:?--seed needs a value}"; shift 2 ;;
@@ -169,6 +173,26 @@ esac
 [ "$build" = 1 ] && "$REPO/scripts/bootstrap.sh"
 # shellcheck disable=SC1091
 set +u; source "$REPO/scripts/env.sh"; set -u
+
+# The robot profile: checked here (a bad one names its file and key), given to every node
+# (/**: the nodes that know the robot declare robot_profile), and its learned model set is
+# the default of --models.
+if [ -n "$robot_profile" ]; then
+  [ -f "$robot_profile" ] || die "--robot-profile: no file $robot_profile"
+  robot_profile="$(cd "$(dirname "$robot_profile")" && pwd)/$(basename "$robot_profile")"
+  profile_models="$(python -c '
+import sys
+from abp_description.robot_profile import ProfileError, load_profile
+try:
+    print(load_profile(sys.argv[1]).models or "")
+except ProfileError as error:
+    sys.exit(f"[start_graph] error: --robot-profile: {error}")' "$robot_profile")" || exit 2
+  model_yaml+=(robot_profile "'${robot_profile//\'/\'\'}'")
+  if [ "$models_given" = 0 ] && [ -n "$profile_models" ]; then
+    models="$profile_models"
+    model_yaml+=(model_file "'${models//\'/\'\'}'")
+  fi
+fi
 
 # The planner modes and the topic names the script needs, from the packages that define them.
 planners="$(python -c 'from abp_planner.planner import PLANNER_NAMES; print(*PLANNER_NAMES)')"
@@ -331,7 +355,7 @@ start() {
   pids+=("$!")
 }
 
-echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}$( [ "$part" = all ] || echo ", $part part"), models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
+echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}$( [ "$part" = all ] || echo ", $part part")${robot_profile:+, robot profile $robot_profile}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
 if [ -n "$operator" ]; then
   # A camera that does not move and a person for the skills (docs/OPERATOR.md): no sim
   # bridge, no robot_state; the detector takes the camera pose from --camera-pose, not

@@ -176,12 +176,14 @@ class Randomisation:
 _WORKER = {}
 
 
-def _init_worker():
+def _init_worker(robot_profile=''):
+    """The worker's robot (`robot_profile`: a profile YAML; empty = the uBot-6) and plans."""
     os.environ.setdefault('MUJOCO_GL', 'egl')
     from abp_description.kinematics import RobotKinematics
+    from abp_description.robot_profile import load_profile
     from abp_skills.plans import SkillPlanner
 
-    kin = RobotKinematics()
+    kin = RobotKinematics(profile=load_profile(robot_profile))
     planner = SkillPlanner(kin)
     _WORKER.update(kin=kin, planner=planner, plans={},
                    q0=planner.home(kin.neutral(), look=np.array(NOMINAL_CENTRE)))
@@ -387,8 +389,10 @@ def _run_task(task):
 
 
 def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=None,
-               symmetry_check=True, progress=True):
+               symmetry_check=True, progress=True, robot_profile=''):
     rand = rand or Randomisation()
+    _WORKER.clear()
+    _init_worker(robot_profile)
     orbit_trials = trials if orbit_trials is None else orbit_trials
     tasks = _tasks(classes, trials, orbit_trials, seed, rand)
     if symmetry_check:
@@ -411,6 +415,7 @@ def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=No
         import multiprocessing
 
         with ProcessPoolExecutor(max_workers=jobs, initializer=_init_worker,
+                                 initargs=(robot_profile,),
                                  mp_context=multiprocessing.get_context('spawn')) as pool:
             futures = [pool.submit(_run_task, task) for task in tasks]
             for future in as_completed(futures):
@@ -455,7 +460,8 @@ def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=No
     settings = dict(trials=trials, orbit_trials=orbit_trials, jobs=jobs, seed=seed,
                     randomisation=rand.__dict__, nominal_centre=NOMINAL_CENTRE,
                     diff_threshold=DIFF_THRESHOLD, tasks=len(tasks), cpu_s=cpu,
-                    load_average=os.getloadavg())
+                    load_average=os.getloadavg(),
+                    robot=_WORKER['kin'].profile.name, robot_profile=robot_profile)
     return SurveyResult(classes, counts, by_class, checks, wall, settings)
 
 
@@ -740,6 +746,9 @@ def main(argv=None):
     parser.add_argument('--jobs', type=int, default=os.cpu_count() or 1)
     parser.add_argument('--out', default='bench_out/survey')
     parser.add_argument('--seed', type=int, default=0)
+    parser.add_argument('--robot-profile', default='', metavar='YAML',
+                        help="the robot's profile (abp_description/profiles/*.yaml; default "
+                             'the uBot-6): its skills push, lift and flip the cube')
     parser.add_argument('--actions', nargs='+', default=list(ACTIONS), choices=ACTIONS)
     parser.add_argument('--masses', nargs='+', default=list(MASS_NAMES), choices=MASS_NAMES,
                         help='mass variants (u = uniform, m+x = heavy body +x, ...)')
@@ -801,7 +810,7 @@ def main(argv=None):
           f'({args.orbit_trials or args.trials} for ORBIT), {args.jobs} workers', flush=True)
     result = run_survey(classes, args.trials, args.orbit_trials, args.jobs, args.seed, rand,
                         symmetry_check=not args.no_symmetry_check,
-                        progress=not args.no_progress)
+                        progress=not args.no_progress, robot_profile=args.robot_profile)
     rows, goals, flagged = write_outputs(result, args.out, args.tables)
     print(f'{len(rows)} classes, {int(flagged.sum())} flagged cells, '
           f'uniform goal {goals["uniform_cells_at_goal"]}/{goals["uniform_cells"]}; '

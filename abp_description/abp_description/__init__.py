@@ -46,8 +46,10 @@ class CameraIntrinsics:
         return np.asarray(self.distortion, dtype=float)
 
 
-def camera_intrinsics(path=None):
-    """Load the head camera's intrinsics (ROS camera_calibration YAML) as CameraIntrinsics."""
+def camera_intrinsics(path=None, frame_id=None):
+    """Load the head camera's intrinsics (ROS camera_calibration YAML) as CameraIntrinsics.
+    `frame_id`: the frame its images are stamped in (a camera driver's parameter, e.g. the
+    robot profile's optical frame); default the file's `frame_id`, else the uBot-6's."""
     import yaml
 
     path = Path(path) if path is not None else Path(camera_yaml_path())
@@ -65,7 +67,7 @@ def camera_intrinsics(path=None):
     return CameraIntrinsics(
         width=width, height=height, fx=k[0], fy=k[4], cx=k[2], cy=k[5], distortion=dist,
         distortion_model=str(doc.get('distortion_model', 'plumb_bob')),
-        frame_id=str(doc.get('frame_id', 'camera_optical_frame')),
+        frame_id=frame_id or str(doc.get('frame_id', 'camera_optical_frame')),
     )
 
 

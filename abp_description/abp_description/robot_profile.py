@@ -153,6 +153,7 @@ class RobotProfile:
     servo_gains: MappingProxyType   # simulator: joint name or part of one -> (kp, kv, arm.)
     grasp_opening_joints: MappingProxyType   # simulator: joint -> outward sign (±1)
     postures: MappingProxyType   # name (POSTURES) -> Posture; empty without manual skills
+    models: str | None = None   # absolute path of the ATG model set learned for this robot
 
     # -- derived tables ------------------------------------------------------------------
     @property
@@ -497,10 +498,16 @@ def profile_from_dict(doc, path='<profile>'):
     gains = _servo_gains(sim.child('servo_gains', {}))
     opening = _signs(sim.child('grasp_opening_joints', {}))
     sim.done()
+    # The ATG tables learned for this robot (learn_atg); start_graph.sh's default --models.
+    models = None
+    if top.doc.get('models') is not None:
+        models = _relative_file(top, 'models', base_dir)
+    else:
+        top.used.add('models')
     top.done()
     profile = RobotProfile(name, str(path), urdf, camera, base, controllers, frames, head, torso,
                            MappingProxyType(arms), collision, skills, gains, opening,
-                           postures)
+                           postures, models)
     if not profile.urdf_from_topic:
         check_against_urdf(profile, _urdf_names(urdf, path))
     return profile

@@ -423,8 +423,8 @@ class MujocoWorld(CommandInputs):
                 if np.any(with_cube & np.any(geoms == g, axis=1))}
 
     def _hands_mid_in_base(self):
-        hands = self.hand_positions()
-        mid = (hands['left'] + hands['right']) / 2
+        """The middle of the hands (of the one hand of a one-armed robot), in the base frame."""
+        mid = np.mean(list(self.hand_positions().values()), axis=0)
         x, y, yaw = self.robot_pose()
         c, s = np.cos(yaw), np.sin(yaw)
         rel = mid - np.array([x, y, 0.0])

@@ -140,8 +140,8 @@ class SimBridgeNode(ManagedNode):
         self.config = cfg.build(values)
         if self.config.world == 'mujoco' and self.config.camera.rate > 0:
             check_rendering()  # no EGL: a configuration error with the fix, not a traceback
-        self.kin = RobotKinematics(profile=profile)
-        self.intrinsics = camera_intrinsics(profile.camera_calibration)
+        self.kin, frames = RobotKinematics(profile=profile), profile.frames
+        self.intrinsics = camera_intrinsics(profile.camera_calibration, frames.camera_optical)
         self.lock = threading.Lock()
         self._epoch_ns = 0  # publish_clock false: wall-clock time at the start (below)
         self._build(self.config, start_time_ns=0)

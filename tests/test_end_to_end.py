@@ -16,6 +16,8 @@ the perception agree. Two graphs:
   in one graph_container process, issue 39; the rules graph and the crash test run one
   process per node): its trace, its result file, its exit code, every node's parameters
   and that it leaves no process behind.
+- the same with the second robot, rover5 (`--robot-profile`: one arm, ORBIT and PUSH only):
+  its profile alone changes the robot.
 
 A node killed mid-episode is the crash test's (tests/test_crash_recovery.py: every node,
 the belief's episode must still end correct).
@@ -140,4 +142,31 @@ def test_a_uniform_cube_is_recognised_in_the_mujoco_world_by_a_one_process_graph
     assert result['posterior'] >= 0.95
     executed = [line.split()[2] for line in trace.splitlines() if line.startswith('action ')]
     assert len(executed) == result['actions']
+    assert not graph_processes(), 'start_graph.sh left processes behind'
+
+
+@pytest.mark.timeout(EPISODE_TIMEOUT_S + 180)
+def test_the_second_robot_recognises_a_cube_in_the_mujoco_world_from_its_profile_alone(
+        tmp_path):
+    """rover5 (one arm, ORBIT and PUSH only; abp_description/profiles/rover5.yaml) through
+    the same script with only --robot-profile added: its URDF, frames, controllers and
+    learned ATG tables reach every node from the profile, and the planner never asks for
+    a skill the robot lacks."""
+    from abp_bench.episode_trace import model_set_of
+    from abp_description.robot_profile import load_profile
+    profile_file = REPO / 'abp_description' / 'profiles' / 'rover5.yaml'
+    profile = load_profile(profile_file)
+    models = model_set_of(profile.models, SEED)
+    index = cube_with_mass(models, 'u')
+    code, result, trace = run_episode(tmp_path, index, ('--world', 'mujoco', '--one-process',
+                                                        '--robot-profile', str(profile_file)))
+    assert code == 0, trace
+    assert f'robot profile {profile_file}, models {profile.models}' in trace, trace
+    assert result['ground_truth'] == models.names[index]
+    assert result['correct'] and result['object_id'] == models.names[index], trace
+    executed = [line.split()[2] for line in trace.splitlines() if line.startswith('action ')]
+    assert executed and len(executed) == result['actions'], trace
+    assert all(a.startswith('ORBIT') or a == 'PUSH' for a in executed), executed
+    plans = [line for line in trace.splitlines() if line.startswith('plan ')]
+    assert plans and all('infeasible: LIFT, FLIP' in line for line in plans), plans
     assert not graph_processes(), 'start_graph.sh left processes behind'

@@ -139,7 +139,12 @@ def parse_args(argv):
                         help='the sim bridge world (default mujoco, as start_graph.sh)')
     parser.add_argument('--no-build', action='store_true',
                         help='do not run scripts/bootstrap.sh before each episode')
-    parser.add_argument('--models', default='robot', help='as start_graph.sh --models')
+    parser.add_argument('--models', default=None,
+                        help="as start_graph.sh --models (default: the robot profile's "
+                             'learned model set, else robot)')
+    parser.add_argument('--robot-profile', default='', metavar='YAML',
+                        help="as start_graph.sh --robot-profile: the robot's profile "
+                             '(default the uBot-6)')
     parser.add_argument('--tables', choices=TRANSITION_RULES, default=None,
                         help='as start_graph.sh --tables (default: paper in the rules world, '
                         'else corrected)')
@@ -180,6 +185,12 @@ def parse_args(argv):
         args.episodes = len(args.objects) * args.repeats
     if args.episodes < 1:
         parser.error('--episodes must be >= 1')
+    if args.robot_profile:
+        args.robot_profile = os.path.abspath(args.robot_profile)
+    if args.models is None:
+        from abp_description.robot_profile import load_profile
+
+        args.models = (args.robot_profile and load_profile(args.robot_profile).models) or 'robot'
     return args
 
 
@@ -275,6 +286,8 @@ def run_episode(args, index, workdir, params_file, bag=None):
         cmd += ['--one-process']
     if args.dictionary:
         cmd += ['--dictionary', args.dictionary]
+    if args.robot_profile:
+        cmd += ['--robot-profile', args.robot_profile]
     if bag is not None:
         cmd += ['--record', str(bag)]
     started = time.monotonic()
@@ -375,7 +388,8 @@ def summarise(results, latencies, observation_latencies, args):
            f'{args.speedup:g}')
     title = (f"{where}, {args.models} models ({tables_of(args)} tables), "
              f"planner {args.planner}{sim}{', one process' if args.one_process else ''}"
-             f"{f', {args.dictionary} tags' if args.dictionary else ''}")
+             f"{f', {args.dictionary} tags' if args.dictionary else ''}"
+             f"{f', robot {pathlib.Path(args.robot_profile).stem}' if args.robot_profile else ''}")
     lines = [f'**{title}**', '', '| measure | value |', '|---|---|']
     lines += [f'| {k} | {v} |' for k, v in rows]
     return '\n'.join(lines)

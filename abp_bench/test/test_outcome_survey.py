@@ -2,6 +2,7 @@
 end to end (1 trial, 2 classes, real MuJoCo physics, < 30 s)."""
 
 import json
+import pathlib
 import subprocess
 import sys
 
@@ -100,3 +101,27 @@ def test_a_drawn_missed_push_leaves_the_cube_alone():
     nominal = survey.simulate(dict(action='PUSH', mass=0, state=4, seed=3,
                                    rand=survey.Randomisation().__dict__))
     assert nominal['fault'] == '' and nominal['moved_cm'] > 1.0, nominal
+
+
+@pytest.mark.timeout(120)
+def test_the_survey_pushes_with_the_one_arm_of_the_robot_its_profile_names(tmp_path):
+    # rover5 (abp_description/profiles/rover5.yaml): one arm, its ball the only hand.
+    from abp_description.robot_profile import default_profile_path
+    rover = str(pathlib.Path(default_profile_path()).with_name('rover5.yaml'))
+    try:
+        assert survey.main(['--robot-profile', rover, '--trials', '1', '--actions', 'PUSH',
+                            '--masses', 'u', '--parity', 'even', '--max-classes', '1',
+                            '--jobs', '1', '--no-symmetry-check', '--no-progress',
+                            '--out', str(tmp_path)]) == 0
+        doc = json.loads((tmp_path / 'survey.json').read_text())
+        assert doc['settings']['robot'] == 'rover5'
+        assert doc['settings']['robot_profile'] == rover
+        (trial,) = doc['trials']
+        assert trial['ran'] and trial['effects'] == ['slid'], trial
+        assert 'arm hand' in trial['events'][0] and trial['moved_cm'] > 3.0, trial
+        # Its missed push turns the arm's base aside (the profile's grasp_opening_joints).
+        missed = survey.simulate(dict(action='PUSH', mass=0, state=4, seed=3, rand=survey
+                                      .Randomisation(p_missed_push=1.0).__dict__))
+        assert missed['fault'] == 'missed push' and missed['moved_cm'] < 0.5, missed
+    finally:
+        survey._WORKER.clear()   # later tests simulate the default robot

@@ -151,7 +151,7 @@ class RobotProfile:
     collision: CollisionGeometry
     skills: MappingProxyType  # skill -> arms it uses (empty for orbit)
     servo_gains: MappingProxyType   # simulator: joint name or part of one -> (kp, kv, arm.)
-    grasp_opening_joints: MappingProxyType   # simulator: joint -> outward sign (±1)
+    grasp_opening_joints: MappingProxyType   # simulator: joint -> rad per m of opening
     postures: MappingProxyType   # name (POSTURES) -> Posture; empty without manual skills
     models: str | None = None   # absolute path of the ATG model set learned for this robot
 
@@ -428,14 +428,16 @@ def _postures(reader, arms, torso):
     return MappingProxyType(postures)
 
 
-def _signs(reader):
-    signs = {}
+def _opening_gains(reader):
+    gains = {}
     for key in reader.doc:
         value = reader.raw(key)
-        if value not in (1, -1) or isinstance(value, bool):
-            raise reader.error(f'must be 1 or -1, got {value!r}', reader._path(str(key)))
-        signs[str(key)] = float(value)
-    return MappingProxyType(signs)
+        if not isinstance(value, (int, float)) or isinstance(value, bool) or value == 0 \
+                or not math.isfinite(value):
+            raise reader.error(f'must be a nonzero number (rad per m of opening), got {value!r}',
+                               reader._path(str(key)))
+        gains[str(key)] = float(value)
+    return MappingProxyType(gains)
 
 
 def profile_from_dict(doc, path='<profile>'):
@@ -496,7 +498,7 @@ def profile_from_dict(doc, path='<profile>'):
     postures = _postures(top.child('postures', {} if not manual else ...), arms, torso)
     sim = top.child('simulation', {})
     gains = _servo_gains(sim.child('servo_gains', {}))
-    opening = _signs(sim.child('grasp_opening_joints', {}))
+    opening = _opening_gains(sim.child('grasp_opening_joints', {}))
     sim.done()
     # The ATG tables learned for this robot (learn_atg); start_graph.sh's default --models.
     models = None

@@ -103,6 +103,13 @@ def test_bad_values_are_named(tmp_path):
     doc = ubot_doc()
     doc['controllers']['head_controller']['interface'] = 'service'
     _refused(tmp_path, doc, 'controllers.head_controller.interface', 'action, topic')
+    doc = ubot_doc()
+    doc['simulation']['grasp_opening_joints']['left_shoulder_roll_joint'] = 0
+    _refused(tmp_path, doc, 'simulation.grasp_opening_joints.left_shoulder_roll_joint',
+             'nonzero number')
+    doc = ubot_doc()
+    doc['models'] = 'no_such_models.npz'
+    _refused(tmp_path, doc, 'models', 'no file')
 
 
 def test_unknown_skills_and_impossible_arms_are_refused(tmp_path):
@@ -204,3 +211,18 @@ def test_multi_dof_joints_load_and_stay_neutral(tmp_path):
     pose = kin.frame_pose(np.array([0.0]), 'tool')
     assert np.allclose(pose[:3, 3], [0.3, 0.0, 0.5])    # the planar joint at its neutral
     assert kin.frame_jacobian(np.array([0.0]), 'tool').shape == (6, 1)
+
+
+def test_the_second_robot_shares_no_name_with_the_first_and_names_its_tables():
+    """rover5: another base frame, camera frame, controllers and arm; ORBIT and PUSH only;
+    its learned ATG model set beside it."""
+    ubot, rover = load_profile(), load_profile(DEFAULT.with_name('rover5.yaml'))
+    assert rover.name == 'rover5' and rover.torso is None and rover.sides == ('arm',)
+    assert set(rover.skills) == {'orbit', 'push'} and not rover.has_skill('lift')
+    kin = RobotKinematics(profile=rover)
+    assert not set(kin.joint_names) & set(RobotKinematics().joint_names)
+    assert rover.frames.base != ubot.frames.base
+    assert rover.frames.camera_optical != ubot.frames.camera_optical
+    assert not set(rover.controller_joints) & set(ubot.controller_joints)
+    assert Path(rover.models).is_file() and Path(rover.models).parent == DEFAULT.parent
+    assert ubot.models is None

@@ -53,7 +53,6 @@ from .mujoco_scene import (
 )
 from .world_interface import CommandInputs, ContactEvent
 
-ARM_REACH = 0.45  # m, shoulder to hand centre: turns grasp_opening into a roll angle
 EGL_HINT = ('MuJoCo offscreen rendering needs EGL (MUJOCO_GL=egl): install it with '
             '`apt-get install libegl1 libgl1-mesa-dri` or use the project Docker image')
 
@@ -308,10 +307,9 @@ class MujocoWorld(CommandInputs):
         if len(s.joint_offsets):
             offsets += np.asarray(s.joint_offsets, dtype=float)
         if self._grasp_opening:
-            # The profile names the joints that open the hands and their outward sign.
-            roll = self._grasp_opening / ARM_REACH
-            for joint, sign in kin.profile.grasp_opening_joints.items():
-                offsets[kin.joint_index(joint)] += sign * roll
+            # The profile names the joints that open the hands, in rad per m outwards.
+            for joint, gain in kin.profile.grasp_opening_joints.items():
+                offsets[kin.joint_index(joint)] += gain * self._grasp_opening
         return offsets
 
     def set_grasp_opening(self, opening):

@@ -148,12 +148,14 @@ def _horizontal(v):
 class ContactTracker:
     """Detects pushes, grasps, lifts and flips from the hands' positions, tick by tick."""
 
-    def __init__(self, params=None):
+    def __init__(self, params=None, sides=SIDES):
+        """`sides`: the robot's hands (its profile's arms); a grasp needs exactly two."""
         self.params = params or ContactParams()
+        self.sides = tuple(sides)
         self.reset()
 
     def reset(self):
-        self.strokes = {s: _Stroke() for s in SIDES}
+        self.strokes = {s: _Stroke() for s in self.sides}
         self.grasp = None
         self._regrasp_blocked = False  # after a release, until a hand leaves its face
 
@@ -170,11 +172,11 @@ class ContactTracker:
     def update(self, world: World, hands, base_pose):
         """Advance the contact state with the hand-ball centres `hands` ({side: (3,)},
         world frame) and the true base pose (x, y, yaw). Returns a list of ContactEvent."""
-        hands = {s: np.asarray(hands[s], dtype=float) for s in SIDES}
+        hands = {s: np.asarray(hands[s], dtype=float) for s in self.sides}
         events = []
         if self.grasp is None and self._far(world.cube, hands):
             # Quick exit: neither hand anywhere near the cube (the common case).
-            for s in SIDES:
+            for s in self.sides:
                 self.strokes[s] = _Stroke()
             self._regrasp_blocked = False
             return events
@@ -185,7 +187,7 @@ class ContactTracker:
             return events
         if self._try_grasp(world, hands, base_pose):
             return events
-        for side in SIDES:
+        for side in self.sides:
             event = self._update_stroke(world, side, hands[side], base_pose)
             if event is not None:
                 events.append(event)
@@ -272,16 +274,18 @@ class ContactTracker:
         return None if best is None else best[:2]
 
     def _try_grasp(self, world, hands, base_pose):
-        if any(self.strokes[s].state in ('front', 'slide') for s in SIDES):
+        if len(self.sides) != 2 or any(self.strokes[s].state in ('front', 'slide')
+                                       for s in self.sides):
             return False
         cube = world.cube
-        contacts = {s: self._side_face_contact(cube, hands[s]) for s in SIDES}
-        if contacts['left'] is None or contacts['right'] is None:
+        left, right = self.sides
+        contacts = {s: self._side_face_contact(cube, hands[s]) for s in self.sides}
+        if contacts[left] is None or contacts[right] is None:
             self._regrasp_blocked = False
             return False
         if self._regrasp_blocked:
             return False
-        (fl, pl), (fr, pr) = contacts['left'], contacts['right']
+        (fl, pl), (fr, pr) = contacts[left], contacts[right]
         if OPPOSITE_FACE[fl] != fr:
             return False
         u = towards_robot(cube, base_pose[:2])
@@ -290,20 +294,21 @@ class ContactTracker:
         kind = 'flip' if min(ahead) >= zone - 1e-9 else 'lift'
         slipped = bool(world.failures.p_slip_grasp > 0
                        and world.rng.random() < world.failures.p_slip_grasp)
-        mid = (hands['left'] + hands['right']) / 2
-        self.grasp = Grasp(kind, (fl, fr), {'left': pl, 'right': pr}, mid, u, cube,
+        mid = (hands[left] + hands[right]) / 2
+        self.grasp = Grasp(kind, (fl, fr), {left: pl, right: pr}, mid, u, cube,
                            slipped=slipped,
-                           sep_min=float(np.linalg.norm(hands['right'] - hands['left'])))
-        for s in SIDES:
+                           sep_min=float(np.linalg.norm(hands[right] - hands[left])))
+        for s in self.sides:
             self.strokes[s] = _Stroke('spent')
         return True
 
     def _update_grasp(self, world, hands):
         prm = self.params
         g = self.grasp
-        sep = float(np.linalg.norm(hands['right'] - hands['left']))
+        left, right = self.sides
+        sep = float(np.linalg.norm(hands[right] - hands[left]))
         g.sep_min = min(g.sep_min, sep)
-        mid = (hands['left'] + hands['right']) / 2
+        mid = (hands[left] + hands[right]) / 2
         d = mid - g.mid0
         g.carry = d
         g.max_raise = max(g.max_raise, float(d[2]))
@@ -319,7 +324,7 @@ class ContactTracker:
         self.grasp = None
         self._regrasp_blocked = True
         prm = self.params
-        pl, pr = g.points['left'], g.points['right']
+        pl, pr = (g.points[s] for s in self.sides)
         if g.kind == 'flip' and g.rolled:
             action = 'FLIP'
         elif g.max_raise >= prm.lift_height:

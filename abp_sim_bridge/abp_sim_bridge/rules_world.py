@@ -99,7 +99,7 @@ class RulesWorld(CommandInputs):
         self.wheel_radius, self.wheel_track = self._wheel_geometry()
         self.twist = (0.0, 0.0)    # applied (odometry) twist
         self._moving = False
-        self.contacts = ContactTracker(self.settings.contact)
+        self.contacts = ContactTracker(self.settings.contact, kin.profile.sides)
         self.manual_actions = 0
         self.last_outcome = ''
         self.events = []           # (time_ns, ContactEvent) of this world, oldest first

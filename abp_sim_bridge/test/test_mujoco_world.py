@@ -12,7 +12,6 @@ from abp_description.kinematics import RobotKinematics, look_at_world
 from abp_sim_bridge.joint_trajectory_follower import TrajectoryPoint
 from abp_sim_bridge.mujoco_scene import CubeSpec
 from abp_sim_bridge.mujoco_world import (  # also sets MUJOCO_GL=egl by default
-    ARM_REACH,
     MujocoSettings,
     MujocoWorld,
     discrete_state,
@@ -147,7 +146,8 @@ def test_a_grasp_opening_moves_the_hands_but_not_the_joint_readings(kin):
     run(world, 1.0)
     assert world.q[roll] == pytest.approx(before_q[roll], abs=0.01)
     physical = world.data.qpos[world._qadr[roll]]
-    assert physical - world.q[roll] == pytest.approx(0.05 / ARM_REACH, rel=0.05)
+    gain = kin.profile.grasp_opening_joints['left_shoulder_roll_joint']
+    assert physical - world.q[roll] == pytest.approx(0.05 * gain, rel=0.05)
     def hand_gap(hands):
         return np.linalg.norm(hands['left'] - hands['right'])
     assert hand_gap(world.hand_positions()) > hand_gap(before_hands) + 0.02

@@ -1,4 +1,5 @@
-"""ClockInput on a real rclpy context: under use_sim_time a managed node's clock follows
+"""ClockInput on a real rclpy context: under use_sim_time (and run_node's
+`take_clock_on_own_thread()`) a managed node's clock follows
 /clock through a hidden node on a thread of its own, while the node itself has no /clock
 subscription and is not spun at all; the subscription is in the node's endpoint report;
 use_sim_time still switches sim time off and on; destroying the node ends the thread."""
@@ -22,9 +23,11 @@ CLOCK = '/clock'
 
 
 def managed(context, use_sim_time):
-    return ManagedNode('timed', namespace='/clock_input_test', context=context,
+    node = ManagedNode('timed', namespace='/clock_input_test', context=context,
                        parameter_overrides=[Parameter('autostart', value=False),
                                             Parameter('use_sim_time', value=use_sim_time)])
+    node.take_clock_on_own_thread()   # what node_runner.run_node does
+    return node
 
 
 def clock_msg(seconds):

@@ -26,6 +26,11 @@ itself as soon as it is built (`start()`, called by `node_runner.run_node`): a p
 (`abp_bringup lifecycle_manager`); a configuration error then makes configure return
 FAILURE with the reason logged, and the node stays unconfigured.
 
+Run by `node_runner.run_node`, a managed node under use_sim_time has its clock driven from
+/clock on a hidden node with a thread of its own (`take_clock_on_own_thread()`,
+`clock_input.ClockInput`), so /clock does not wake the node's executor; that subscription
+is in the endpoint report like the node's own.
+
 Each managed node also serves `~/endpoint_status` (std_srvs/Trigger): success when the
 node is active; the message is JSON with its lifecycle state, a per-process instance id
 (a respawned node has a new one), and, per topic, how many publishers each of its
@@ -44,6 +49,7 @@ from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 from std_srvs.srv import Trigger
 
+from .clock_input import ClockInput
 from .entity_registry import EntityRegistry
 from .input_node import InputNode
 from .lifecycle_report import endpoint_report
@@ -76,6 +82,19 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
         # group would otherwise keep the manager's question waiting.
         self.create_service(Trigger, ENDPOINT_STATUS, self._on_endpoint_status,
                             callback_group=MutuallyExclusiveCallbackGroup())
+        self.clock_input = None   # take_clock_on_own_thread()
+
+    def take_clock_on_own_thread(self):
+        """Under use_sim_time, take /clock on a thread of its own, not on this node's
+        executor (clock_input.ClockInput). node_runner does it for a node in a process of
+        its own; the one-process graph container (abp_bringup) does not."""
+        if self.clock_input is None:
+            self.clock_input = ClockInput(self)
+
+    def destroy_node(self):
+        if self.clock_input is not None:
+            self.clock_input.close()
+        return super().destroy_node()
 
     # -- what subclasses implement ---------------------------------------------------
     def configure(self):
@@ -217,7 +236,8 @@ class ManagedNode(EntityRegistry, TolerantSubscriptions, LifecycleNode):
         return endpoint_report(
             self.state_label(), self.instance,
             ((s.topic_name, s.get_publisher_count())
-             for s in (*self.subscriptions, *self._input_node_subscriptions())),
+             for s in (*self.subscriptions, *self._input_node_subscriptions(),
+                       *(self.clock_input.subscriptions if self.clock_input else ()))),
             ((p.topic_name, p.get_subscription_count()) for p in self.publishers))
 
     def _on_endpoint_status(self, request, response):

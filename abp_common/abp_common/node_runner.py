@@ -59,6 +59,7 @@ def run_node(name, make_node, args=None, config_errors=(), make_executor=SingleT
     try:
         node = make_node()
         if isinstance(node, ManagedNode):
+            node.take_clock_on_own_thread()   # /clock off the node's executor (clock_input)
             node.start(config_errors)
     except (*BASE_CONFIG_ERRORS, *config_errors) as error:
         print(f'[{name}] configuration error: {error}', file=sys.stderr)

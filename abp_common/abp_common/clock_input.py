@@ -19,13 +19,10 @@ Only rclpy's public API is used: `Node.subscriptions`, `destroy_subscription`,
 
 import threading
 
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.time_source import CLOCK_TOPIC, USE_SIM_TIME_NAME, TimeSource
 
-from .tolerant_subscriptions import TolerantNode
-
-CLOSE_TIMEOUT_S = 2.0
+from .input_node import InputNode
 
 
 class ClockInput:
@@ -34,10 +31,8 @@ class ClockInput:
     def __init__(self, owner):
         self._owner = owner
         self._lock = threading.Lock()
-        self.node = None
+        self._input = None         # InputNode: the hidden node and its thread
         self._time_source = None
-        self._executor = None
-        self._thread = None
         if owner.get_parameter(USE_SIM_TIME_NAME).value:
             self._start()
         owner.add_post_set_parameters_callback(self._on_parameters)
@@ -45,18 +40,10 @@ class ClockInput:
     def _start(self):
         owner = self._owner
         with self._lock:
-            if self.node is None:
-                self.node = TolerantNode(
-                    f'_{owner.get_name()}_clock_input', namespace=owner.get_namespace(),
-                    context=owner.context, use_global_arguments=False,
-                    start_parameter_services=False)
-                self._time_source = TimeSource(node=self.node)
+            if self._input is None:
+                self._input = InputNode(owner, 'clock_input')
+                self._time_source = TimeSource(node=self._input.node)
                 self._time_source.attach_clock(owner.get_clock())
-                self._executor = SingleThreadedExecutor(context=owner.context)
-                self._executor.add_node(self.node)
-                self._thread = threading.Thread(target=self._spin, daemon=True,
-                                                name=f'{owner.get_name()}-clock')
-                self._thread.start()
             self._time_source.ros_time_is_active = True
         self._drop_owner_subscription()
 
@@ -73,31 +60,28 @@ class ClockInput:
                 elif self._time_source is not None:
                     self._time_source.ros_time_is_active = False
 
-    def _spin(self):
-        try:
-            self._executor.spin()
-        except ExternalShutdownException:
-            pass
+    @property
+    def node(self):
+        """The hidden node that takes /clock (None until use_sim_time is first set)."""
+        return None if self._input is None else self._input.node
 
     @property
     def subscriptions(self):
         """The clock node's subscriptions (its /clock), for the owner's endpoint report."""
-        return [] if self.node is None else list(self.node.subscriptions)
+        return [] if self._input is None else self._input.subscriptions
 
     @property
     def active(self):
         """True while /clock drives the owner's clock from the clock thread."""
         return (self._time_source is not None and self._time_source.ros_time_is_active
-                and self._thread.is_alive())
+                and self._input.spinning)
 
     def close(self):
-        if self.node is None:
+        if self._input is None:
             return
-        self._executor.shutdown(timeout_sec=CLOSE_TIMEOUT_S)
-        self._thread.join(timeout=CLOSE_TIMEOUT_S)
         self._time_source.detach_node()
-        self.node.destroy_node()
-        self.node = None
+        self._input.close()
+        self._input = None
 
 
 __all__ = ['ClockInput']

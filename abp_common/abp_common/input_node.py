@@ -27,15 +27,16 @@ CLOSE_TIMEOUT_S = 2.0
 
 
 class InputNode:
-    def __init__(self, owner):
+    def __init__(self, owner, suffix='inputs'):
+        """The hidden node `_<owner name>_<suffix>` and its thread `<owner name>-<suffix>`."""
         self.node = TolerantNode(
-            f'_{owner.get_name()}_inputs', namespace=owner.get_namespace(),
+            f'_{owner.get_name()}_{suffix}', namespace=owner.get_namespace(),
             context=owner.context, use_global_arguments=False,
             start_parameter_services=False)
         self._executor = SingleThreadedExecutor(context=owner.context)
         self._executor.add_node(self.node)
         self._thread = threading.Thread(target=self._spin, daemon=True,
-                                        name=f'{owner.get_name()}-inputs')
+                                        name=f'{owner.get_name()}-{suffix}')
         self._thread.start()
 
     def _spin(self):

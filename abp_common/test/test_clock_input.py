@@ -88,7 +88,7 @@ def test_sim_time_comes_from_the_clock_thread_not_the_nodes_executor(rclpy_conte
         # The owner is in no executor: only the clock thread can move its clock.
         assert reached.wait(12.5, pub.publish, executor), 'the clock never reached 12.5 s'
         assert owner.get_clock().now().nanoseconds == 12_500_000_000
-        assert reached.threads == {'timed-clock'}
+        assert reached.threads == {'timed-clock_input'}
         assert owner.endpoint_report()['inputs'] == {CLOCK: 1}
 
         # use_sim_time is still the node's switch: off gives system time, on sim time again.
@@ -103,14 +103,14 @@ def test_sim_time_comes_from_the_clock_thread_not_the_nodes_executor(rclpy_conte
         reached.close()
         thread_names = {t.name for t in threading.enumerate()}
         owner.destroy_node()
-    assert 'timed-clock' in thread_names
-    assert 'timed-clock' not in {t.name for t in threading.enumerate()}
+    assert 'timed-clock_input' in thread_names
+    assert 'timed-clock_input' not in {t.name for t in threading.enumerate()}
 
 
 def test_without_sim_time_there_is_no_clock_thread(rclpy_context):
     owner = managed(rclpy_context, False)
     try:
         assert owner.clock_input.subscriptions == [] and not owner.clock_input.active
-        assert 'timed-clock' not in {t.name for t in threading.enumerate()}
+        assert 'timed-clock_input' not in {t.name for t in threading.enumerate()}
     finally:
         owner.destroy_node()

@@ -44,6 +44,11 @@ class InputNode:
             self._executor.spin()
         except ExternalShutdownException:
             pass
+        except Exception:
+            # Ctrl-C shuts the context down under the executor: between its check and the
+            # wait, rclpy raises its RCLError ("context is not valid"), not the above.
+            if self.node.context.ok():
+                raise
 
     @property
     def subscriptions(self):

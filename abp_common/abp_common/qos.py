@@ -13,10 +13,6 @@
   Fast DDS's default shared-memory segment (512 KB): a best-effort reader got 1 to 4 of 56
   such frames where a reliable reader in the same process got all 56 (mono8, 307 KB: all
   of them either way). Many camera drivers publish reliable for the same reason.
-- `STREAM_READER`: a best-effort reader of a state stream it interpolates over
-  (/joint_states at 100-500 Hz): a keep-last depth of `STREAM_DEPTH`, so that a node busy
-  for a while (a detection under load) takes the samples it missed instead of losing all
-  but the last five, which left gaps in the detector's joint-state buffer.
 """
 
 from rclpy.qos import (
@@ -48,9 +44,6 @@ LATCHED = latched()
 LATCHED_READER = latched(DEFAULT_DEPTH)
 SENSOR_DATA = qos_profile_sensor_data
 CAMERA_PUBLISHER = reliable(SENSOR_DATA.depth)
-STREAM_DEPTH = 200   # 1 s of joint states at 200 Hz
-STREAM_READER = QoSProfile(depth=STREAM_DEPTH, history=QoSHistoryPolicy.KEEP_LAST,
-                           reliability=QoSReliabilityPolicy.BEST_EFFORT)
 
 __all__ = ['CAMERA_PUBLISHER', 'DEFAULT_DEPTH', 'LATCHED', 'LATCHED_READER', 'RELIABLE',
-           'SENSOR_DATA', 'STREAM_DEPTH', 'STREAM_READER', 'latched', 'reliable']
+           'SENSOR_DATA', 'latched', 'reliable']

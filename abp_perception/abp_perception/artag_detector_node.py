@@ -165,7 +165,7 @@ class ArtagDetectorNode(ManagedNode):
         self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
                               qos.SENSOR_DATA)
         self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,
-                              qos.STREAM_READER)
+                              qos.SENSOR_DATA)
 
     # -- parameters ---------------------------------------------------------------
     def _build_detector(self, config, camera_matrix, dist_coeffs, image_size=None):

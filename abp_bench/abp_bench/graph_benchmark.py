@@ -185,12 +185,17 @@ def parse_args(argv):
         args.episodes = len(args.objects) * args.repeats
     if args.episodes < 1:
         parser.error('--episodes must be >= 1')
+    profile_models = None
     if args.robot_profile:
-        args.robot_profile = os.path.abspath(args.robot_profile)
-    if args.models is None:
-        from abp_description.robot_profile import load_profile
+        from abp_description.robot_profile import ProfileError, load_profile
 
-        args.models = (args.robot_profile and load_profile(args.robot_profile).models) or 'robot'
+        args.robot_profile = os.path.abspath(args.robot_profile)
+        try:
+            profile_models = load_profile(args.robot_profile).models
+        except ProfileError as error:
+            parser.error(f'--robot-profile: {error}')
+    if args.models is None:
+        args.models = profile_models or 'robot'
     return args
 
 

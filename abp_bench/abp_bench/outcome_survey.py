@@ -82,6 +82,7 @@ from abp_belief.cube import (
     apply_rotation,
 )
 from abp_description.frames import axis_angle_deg, rot_z_deg
+from abp_description.robot_profile import load_profile
 from abp_skills.plans import SkillConfig
 
 # m, base_link: the skills' plan and the cube's mean (where the base approach puts the cube)
@@ -180,7 +181,6 @@ def _init_worker(robot_profile=''):
     """The worker's robot (`robot_profile`: a profile YAML; empty = the uBot-6) and plans."""
     os.environ.setdefault('MUJOCO_GL', 'egl')
     from abp_description.kinematics import RobotKinematics
-    from abp_description.robot_profile import load_profile
     from abp_skills.plans import SkillPlanner
 
     kin = RobotKinematics(profile=load_profile(robot_profile))
@@ -391,8 +391,6 @@ def _run_task(task):
 def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=None,
                symmetry_check=True, progress=True, robot_profile=''):
     rand = rand or Randomisation()
-    _WORKER.clear()
-    _init_worker(robot_profile)
     orbit_trials = trials if orbit_trials is None else orbit_trials
     tasks = _tasks(classes, trials, orbit_trials, seed, rand)
     if symmetry_check:
@@ -408,6 +406,8 @@ def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=No
     t0 = time.perf_counter()
     bar = _progress(len(tasks), progress)
     if jobs == 1:
+        _WORKER.clear()   # this process simulates: with the survey's robot
+        _init_worker(robot_profile)
         for task in tasks:
             results.append(_run_task(task))
             bar.update()
@@ -461,7 +461,7 @@ def run_survey(classes, trials=20, orbit_trials=None, jobs=None, seed=0, rand=No
                     randomisation=rand.__dict__, nominal_centre=NOMINAL_CENTRE,
                     diff_threshold=DIFF_THRESHOLD, tasks=len(tasks), cpu_s=cpu,
                     load_average=os.getloadavg(),
-                    robot=_WORKER['kin'].profile.name, robot_profile=robot_profile)
+                    robot=load_profile(robot_profile).name, robot_profile=robot_profile)
     return SurveyResult(classes, counts, by_class, checks, wall, settings)
 
 

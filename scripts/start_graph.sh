@@ -79,6 +79,8 @@ operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_t
 wrong_action_fraction=""; operator_silent=false
 usage() { sed -n '2,70p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
+# A YAML single-quoted string (a path may hold any character; ' is written twice).
+yaml_string() { printf "'%s'" "${1//\'/\'\'}"; }
 while [ $# -gt 0 ]; do
   case "$1" in
     --robot) robot=1; shift ;;
@@ -167,7 +169,7 @@ case "$models" in
             model_yaml+=(model_set random model_set_size "${models#random:}") ;;
   *) [ -f "$models" ] || die "--models: $models is neither a set name nor a file"
      file="$(cd "$(dirname "$models")" && pwd)/$(basename "$models")"
-     model_yaml+=(model_file "'${file//\'/\'\'}'") ;;
+     model_yaml+=(model_file "$(yaml_string "$file")") ;;
 esac
 
 [ "$build" = 1 ] && "$REPO/scripts/bootstrap.sh"
@@ -187,10 +189,10 @@ try:
     print(load_profile(sys.argv[1]).models or "")
 except ProfileError as error:
     sys.exit(f"[start_graph] error: --robot-profile: {error}")' "$robot_profile")" || exit 2
-  model_yaml+=(robot_profile "'${robot_profile//\'/\'\'}'")
+  model_yaml+=(robot_profile "$(yaml_string "$robot_profile")")
   if [ "$models_given" = 0 ] && [ -n "$profile_models" ]; then
     models="$profile_models"
-    model_yaml+=(model_file "'${models//\'/\'\'}'")
+    model_yaml+=(model_file "$(yaml_string "$models")")
   fi
 fi
 

@@ -8,7 +8,10 @@ Subscribes:  camera/image_raw   (sensor_msgs/Image, sensor-data QoS of depth 1: 
              'rgb8; jpeg compressed bgr8'; decoded with cv2.imdecode), with
              `image_transport: compressed`
              camera/camera_info (sensor_msgs/CameraInfo, sensor-data QoS)
-             joint_states       (sensor_msgs/JointState; camera pose by forward kinematics)
+             joint_states       (sensor_msgs/JointState, sensor-data QoS, on a thread
+                                of its own (abp_common.input_node), so that a detection
+                                in progress does not make the queue drop them; camera
+                                pose by forward kinematics)
 Publishes:   abp/tag_detections (abp_msgs/TagDetectionArray, stamped with the image's
              header stamp; poses in `base_frame` once a joint state has arrived, else in
              the camera frame)
@@ -40,6 +43,7 @@ an image the detector refuses (`image`). camera_info and joint_states: the kinds
 """
 
 import sys
+import threading
 
 import cv2
 import numpy as np
@@ -122,6 +126,9 @@ class ArtagDetectorNode(ManagedNode):
         self.joint_buffer = JointStateBuffer(self._values['joint_state_buffer_s'],
                                              self._values['joint_state_tolerance_s'])
         self._camera_joints = {}             # URDF frame -> joints that move it
+        # joint_states arrive on the input node's thread; this guards the buffer and the
+        # newest joint vector that thread writes and the image callbacks read.
+        self._joint_lock = threading.Lock()
         # An image stamped after the newest joint state waits here (one at most) for the
         # joint state that reaches its stamp, as tf2's message filter waits for a transform.
         self._waiting = None
@@ -164,8 +171,16 @@ class ArtagDetectorNode(ManagedNode):
             self.health.subscribe(Image, self.image_topic, self._on_image, LATEST_FRAME)
         self.health.subscribe(CameraInfo, names.CAMERA_INFO, self._on_camera_info,
                               qos.SENSOR_DATA)
+        # joint_states (100-500 Hz from a joint_state_broadcaster) on a thread of their
+        # own: on this node's executor a detection of tens of ms let the depth-5 sensor
+        # queue drop all but the last five, and the pose at an image stamp was then
+        # interpolated across the gap. A deeper queue on this executor is no cure: a
+        # detector slower than the joint-state rate then worked through a backlog
+        # seconds old. The thread only buffers; a frame waiting for its joint state is
+        # detected back on this executor, woken by the guard condition.
+        self._joints_arrived = self.create_guard_condition(self._on_joints_arrived)
         self.health.subscribe(JointState, names.JOINT_STATES, self._on_joint_state,
-                              qos.SENSOR_DATA)
+                              qos.SENSOR_DATA, node=self.create_input_node().node)
 
     # -- parameters ---------------------------------------------------------------
     def _build_detector(self, config, camera_matrix, dist_coeffs, image_size=None):
@@ -264,9 +279,15 @@ class ArtagDetectorNode(ManagedNode):
         joints = dict(zip(msg.name, msg.position))
         if not any(self.kinematics.has_joint(n) for n in joints):
             raise Rejected('unknown_id', 'joint_states names no joint of the robot')
-        self._joints = self.kinematics.q_from_mapping(
-            joints, default=self._joints if self._joints is not None else None)
-        self.joint_buffer.add(stamp_ns(msg.header.stamp), msg.name, msg.position)
+        with self._joint_lock:
+            self._joints = self.kinematics.q_from_mapping(joints, default=self._joints)
+            self.joint_buffer.add(stamp_ns(msg.header.stamp), msg.name, msg.position)
+        waiting = self._waiting
+        if waiting is not None and not self._must_wait(*waiting[1:]):
+            self._joints_arrived.trigger()
+
+    def _on_joints_arrived(self):
+        """On this node's executor: the waiting frame's joint states have come."""
         if self._waiting is not None and not self._must_wait(*self._waiting[1:]):
             self._detect_waiting()
 
@@ -283,7 +304,9 @@ class ArtagDetectorNode(ManagedNode):
                 self.fixed_pose is not None:
             return False
         t_ns = stamp_ns(header.stamp)
-        newest = self.joint_buffer.newest_of(self._joints_of(frame))
+        joints = self._joints_of(frame)
+        with self._joint_lock:
+            newest = self.joint_buffer.newest_of(joints)
         return t_ns != 0 and newest is not None and newest < t_ns
 
     def _take_frame(self, gray, header, frame):
@@ -293,6 +316,10 @@ class ArtagDetectorNode(ManagedNode):
             self._detect_waiting()
         if self._must_wait(header, frame):
             self._waiting = (gray, header, frame)
+            # The joint state may have come between the check and the line above, when
+            # the input thread saw no waiting frame.
+            if not self._must_wait(header, frame):
+                self._detect_waiting()
             return
         self._detect_and_publish(gray, header, frame, self._pose_at(frame, header))
 
@@ -315,25 +342,31 @@ class ArtagDetectorNode(ManagedNode):
         states). Raises Rejected('joint_state_stamp') when the buffer does not reach the
         stamp."""
         t_ns = stamp_ns(stamp)
-        q = self._joints
+        interpolate = self.joint_lookup == 'interpolate' and t_ns != 0
+        joints = self._joints_of(frame)
+        with self._joint_lock:
+            q = self._joints
+            try:
+                found = self.joint_buffer.at(t_ns, joints) if interpolate else None
+            except OutsideBuffer as error:
+                outside = str(error)
+                found = None
         if self.joint_lookup == 'interpolate' and t_ns == 0:
             self.get_logger().warning(
                 'image without a stamp: camera pose from the newest joint state',
                 throttle_duration_sec=THROTTLE_S)
-        elif self.joint_lookup == 'interpolate':
-            try:
-                found = self.joint_buffer.at(t_ns, self._joints_of(frame))
-            except OutsideBuffer as error:
-                raise Rejected('joint_state_stamp', f'image {error}: do the camera and '
-                               f'{self.resolve_topic_name(names.JOINT_STATES)} share a '
-                               'clock? (joint_state_lookup:=latest takes the newest joint '
-                               'state instead)') from None
+        elif interpolate and found is None:
+            raise Rejected('joint_state_stamp', f'image {outside}: do the camera and '
+                           f'{self.resolve_topic_name(names.JOINT_STATES)} share a '
+                           'clock? (joint_state_lookup:=latest takes the newest joint '
+                           'state instead)')
+        elif interpolate:
             if found.unstamped:
                 self.get_logger().warning(
                     f'joint_states of {", ".join(found.unstamped)} are unstamped: camera pose '
                     'from the newest of them, not at the image stamp',
                     throttle_duration_sec=THROTTLE_S)
-            q = self.kinematics.q_from_mapping(found.positions, default=self._joints)
+            q = self.kinematics.q_from_mapping(found.positions, default=q)
         return self.kinematics.frame_pose(q, frame)
 
     def _ready(self):

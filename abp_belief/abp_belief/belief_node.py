@@ -52,6 +52,7 @@ class BeliefNode(ManagedNode):
         values = declare_all(self, MODEL_SET_SPECS + BELIEF_SPECS)
         self.model_set = model_set_from_values(values)
         self.filter = BeliefFilter(self.model_set)
+        self._prior = None               # the last reset's prior (None: uniform)
         self.model_set_id = fingerprint(self.model_set)
         self.step = 0
         self._gate = EvidenceGate(values['correct_once_per_action'])
@@ -108,9 +109,26 @@ class BeliefNode(ManagedNode):
         if not msg.hypotheses:
             self.get_logger().debug('observation without aspect hypotheses: nothing to correct')
             return
+        stamp = input_checks.stamp_ns(msg.header.stamp)
+        if stamp < self._gate.earliest_stamp_ns:
+            self._reset_if_the_clock_went_back()
         with self.health.timed():
-            if self._gate.offer(input_checks.stamp_ns(msg.header.stamp), msg):
+            if self._gate.offer(stamp, msg):
                 self._correct(msg)
+
+    def _reset_if_the_clock_went_back(self):
+        """As tf2 clears its buffer on a jump back in time: a clock that went back before
+        the last action's end is a new world (a restarted simulation, a bag played again),
+        whose frames would all be dropped as stale until the clock came back there. The
+        belief starts again from the prior (its step goes back: the planner re-observes)."""
+        now_ns = self.get_clock().now().nanoseconds
+        if not self._gate.clock_went_back(now_ns):
+            return
+        self.get_logger().warning(
+            f'the clock went back to {now_ns * 1e-9:.3f} s, before the last action ended '
+            f'({self._gate.earliest_stamp_ns * 1e-9:.3f} s): a restarted simulation or a '
+            f'bag played again; belief reset at step {self.step}')
+        self._restart(self._prior)
 
     def _correct(self, msg: AspectObservation):
         z = _observation_of(msg)
@@ -149,13 +167,23 @@ class BeliefNode(ManagedNode):
 
     def _on_reset(self, request, response):
         prior = np.asarray(request.model_prior, dtype=np.float64)
+        step = self.step
         try:
-            self.filter = BeliefFilter(self.model_set, prior if prior.size else None)
+            self._restart(prior if prior.size else None)
         except ValueError as error:
             response.success = False
             response.message = f'reset refused: {error}'
             return response
-        self.get_logger().info(f'belief reset at step {self.step} (a new episode)')
+        self.get_logger().info(f'belief reset at step {step} (a new episode)')
+        response.success = True
+        response.message = f'belief reset over {self.model_set.num_models} models'
+        return response
+
+    def _restart(self, prior):
+        """The belief from `prior` (None: uniform), published; raises ValueError for a
+        prior the filter refuses, leaving the belief as it was."""
+        self.filter = BeliefFilter(self.model_set, prior)
+        self._prior = prior
         self.step = 0
         self._gate.reset()
         # Stamped with the newest input taken, not with now: the corrections that follow
@@ -164,9 +192,6 @@ class BeliefNode(ManagedNode):
         # Never after the clock, though: a restarted simulation's clock went back.
         newest = self._stamps.newest_not_after(self.get_clock().now().nanoseconds)
         self._publish_belief(None if newest is None else Time(nanoseconds=newest).to_msg())
-        response.success = True
-        response.message = f'belief reset over {self.model_set.num_models} models'
-        return response
 
     # -- output -------------------------------------------------------------------
     def _state_values(self):

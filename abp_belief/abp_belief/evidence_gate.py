@@ -18,6 +18,9 @@ import collections
 
 # Deep enough that a replay or a busy machine does not overwrite unread inputs.
 HELD_OBSERVATIONS = 100
+# How far the clock may be behind the last action's end before it counts as having gone
+# back: nodes take /clock at slightly different moments, by a few tens of ms.
+CLOCK_JUMP_BACK_NS = 1_000_000_000
 
 
 class EvidenceGate:
@@ -52,6 +55,13 @@ class EvidenceGate:
             return False
         return True
 
+    def clock_went_back(self, now_ns):
+        """True when the clock `now_ns` is well before the last action's end: the time
+        source started again (a restarted simulation, a bag played again), so every
+        frame would be stale against a barrier the clock will not reach for as long as
+        it had run, and the state the belief tracked is gone with that world."""
+        return self.earliest_stamp_ns - now_ns > CLOCK_JUMP_BACK_NS
+
     def describe(self):
         """One line on what the gate does with the next observation (for diagnostics)."""
         if not self.once_per_action or self.awaiting_observation:
@@ -81,4 +91,4 @@ class EvidenceGate:
         return [observation for _, observation in early]
 
 
-__all__ = ['HELD_OBSERVATIONS', 'EvidenceGate']
+__all__ = ['CLOCK_JUMP_BACK_NS', 'HELD_OBSERVATIONS', 'EvidenceGate']

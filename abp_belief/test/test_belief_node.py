@@ -153,11 +153,14 @@ def test_observation_and_action_update_the_published_belief(graph, spin):
     assert (beliefs[-1].header.stamp.sec, beliefs[-1].header.stamp.nanosec) == (201, 0)
 
 
-def test_reset_belief_after_a_restarted_simulation_is_not_stamped_in_the_future(
+def test_a_restarted_simulation_starts_the_belief_again_and_its_reset_is_not_in_the_future(
         ros_processes, rclpy_context, spin):
-    """On sim time, the reset belief carries the newest input's stamp, but never one after
-    the clock: a restarted simulation's clock starts again near 0, and the planner refuses
-    a belief stamped in its future (a crash-test finding)."""
+    """A clock that goes back before the last action's end starts the belief again (a
+    crash-test finding: a respawned sim bridge's frames were dropped as stale and the
+    planner waited out its observation timeout). On sim time, the reset belief carries
+    the newest input's stamp, but never one after the clock: a restarted simulation's
+    clock starts again near 0, and the planner refuses a belief stamped in its future
+    (another crash-test finding)."""
     ros_processes.start([belief_executable(), '--ros-args', '-p', 'model_set:=robot',
                          '-p', f'seed:={SEED}', '-p', 'use_sim_time:=true'])
     node = rclpy.create_node('belief_sim_time_tester', context=rclpy_context)
@@ -169,9 +172,11 @@ def test_reset_belief_after_a_restarted_simulation_is_not_stamped_in_the_future(
         clock_pub = node.create_publisher(Clock, '/clock', RELIABLE)
         obs_pub = node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                         RELIABLE)
+        action_pub = node.create_publisher(ExecutedAction, '/abp/executed_action', RELIABLE)
         reset = node.create_client(ResetBelief, '/abp/reset_belief')
         assert spin(executor, lambda: beliefs and reset.service_is_ready()
                     and obs_pub.get_subscription_count() > 0
+                    and action_pub.get_subscription_count() > 0
                     and clock_pub.get_subscription_count() > 0, 30)
 
         def publish_clock(sec):
@@ -184,6 +189,27 @@ def test_reset_belief_after_a_restarted_simulation_is_not_stamped_in_the_future(
         frame.header.stamp.sec = 100
         obs_pub.publish(frame)
         assert spin(executor, lambda: beliefs[-1].step == 1, 10), 'observation not applied'
+        action = ExecutedAction(action='ORBIT_P45', sequence=1, success=True)
+        action.header.stamp.sec = 101
+        action_pub.publish(action)
+        assert spin(executor, lambda: beliefs[-1].step == 2, 10), 'action not applied'
+
+        # The simulation restarts: its clock starts again at 2 s. Frames from the new
+        # world are stamped before the last action's end; rather than drop them all as
+        # stale until the clock is back at 101 s, the node starts the belief again (as
+        # tf2 clears its buffer on a jump back in time) and corrects with them.
+        seen = len(beliefs)
+
+        def restarted_and_corrected():
+            publish_clock(2)
+            new_frame = observation_msg(z)
+            new_frame.header.stamp.sec = 2
+            obs_pub.publish(new_frame)
+            return spin(executor, lambda: beliefs[-1].step == 1, 1.0)
+
+        assert spin(executor, restarted_and_corrected, 20), \
+            f'no correction after the clock went back (steps {[b.step for b in beliefs]})'
+        assert 0 in [b.step for b in beliefs[seen:]], 'the belief was not started again'
 
         def reset_stamp():
             # The node takes the restarted clock when its /clock message arrives: ask

@@ -97,3 +97,15 @@ def test_the_held_queue_is_bounded():
         gate.offer(s(t), t)
     assert gate.held == 3
     assert gate.action_executed(s(0)) == [7, 8, 9]
+
+
+def test_a_clock_well_before_the_last_action_has_gone_back():
+    gate = EvidenceGate()
+    gate.action_executed(s(100))
+    # Nodes take /clock at slightly different moments: a clock just behind is no jump.
+    assert not gate.clock_went_back(s(99.5))
+    assert not gate.clock_went_back(s(100.2))
+    # A restarted simulation's clock starts again near 0.
+    assert gate.clock_went_back(s(3))
+    gate.reset()
+    assert not gate.clock_went_back(s(3))

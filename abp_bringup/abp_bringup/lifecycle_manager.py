@@ -51,6 +51,10 @@ from abp_common.tolerant_subscriptions import TolerantNode
 GRAPH_NODES = GRAPH_NODE_NAMES
 READY_LINE = 'graph ready'
 BRINGUP_CHECK_PERIOD_S = 0.1
+# How long a watch round waits for the answers to its requests; later answers are taken
+# in a later round (each round asks again, so a respawned node is seen at once).
+ROUND_WAIT_S = 1.0
+MAX_REQUESTS_IN_FLIGHT = 20   # per node: a silent node is not asked without bound
 TRANSITIONS = {'configure': Transition.TRANSITION_CONFIGURE,
                'activate': Transition.TRANSITION_ACTIVATE}
 STATE_AFTER = {'configure': 'inactive', 'activate': 'active'}
@@ -104,6 +108,8 @@ class LifecycleManager(TolerantNode):
                         for n in self.node_names}
         self._first = [n for n in self.values['activate_first'] if n in self.node_names]
         self._settled = {}
+        self._in_flight = {n: [] for n in self.node_names}  # [(sent, future, event)]
+        self._answers = {}            # node -> (sent, report) of its newest request answered
         self._last_todo = []          # node -> the instance brought up (or refused) last
         self._ready = None
         self._was_ready = False
@@ -154,9 +160,17 @@ class LifecycleManager(TolerantNode):
                             min(self.values['check_period'], BRINGUP_CHECK_PERIOD_S))
 
     def _check(self):
-        reports = self._reports(self.node_names)
+        reports = self._watch_round()
+        if self._ready and not_active(reports, self.node_names):
+            # Said before bringing a respawned node back: the graph was not ready while it
+            # was gone, however fast it is back.
+            self._update_ready(reports)
         if self._managing.is_set():
-            reports.update(self._bring_up_all(reports))
+            brought_up = self._bring_up_all(reports)
+            # Newer than any answer still in flight, which a later round must not take.
+            now = time.monotonic()
+            self._answers.update((name, (now, report)) for name, report in brought_up.items())
+            reports.update(brought_up)
         self._update_ready(reports)
 
     def _bring_up_all(self, reports):
@@ -269,6 +283,54 @@ class LifecycleManager(TolerantNode):
                                        f'{self.values["service_timeout"]:g} s and still '
                                        f'{state_before}; asking again')
                 future, answered = self._send(client, request)
+
+    def _watch_round(self):
+        """{node: endpoint report} of the nodes that answered a request sent within the
+        last `service_timeout` s.
+
+        Each round asks every node again and waits at most ROUND_WAIT_S: a killed node's
+        service stays listed until DDS notices it gone, and a round that waited the full
+        `service_timeout` for it saw its respawned process only seconds later (3-5 s per
+        kill in the crash test). Answers that come after the round are kept for the next
+        one; requests unanswered for `service_timeout` s are given up."""
+        timeout = self.values['service_timeout']
+        sent = time.monotonic()
+        fresh = []
+        for name in self.node_names:
+            client = self._status[name]
+            flights = self._in_flight[name]
+            if client.service_is_ready() and len(flights) < MAX_REQUESTS_IN_FLIGHT:
+                future, event = self._send(client, Trigger.Request())
+                flights.append((sent, future, event))
+                fresh.append(event)
+        deadline = sent + min(timeout, ROUND_WAIT_S)
+        for event in fresh:
+            if not event.wait(max(0.0, deadline - time.monotonic())):
+                break
+        now = time.monotonic()
+        reports = {}
+        for name, flights in self._in_flight.items():
+            waiting = []
+            for asked, future, event in flights:
+                if event.is_set():
+                    self._take_answer(name, asked, future.result())
+                elif now - asked > timeout:
+                    self._status[name].remove_pending_request(future)
+                else:
+                    waiting.append((asked, future, event))
+            self._in_flight[name] = waiting
+            answer = self._answers.get(name)
+            if answer is not None and now - answer[0] <= timeout:
+                reports[name] = answer[1]
+        return reports
+
+    def _take_answer(self, name, asked, result):
+        if result is None or asked < self._answers.get(name, (-1.0, None))[0]:
+            return
+        try:
+            self._answers[name] = (asked, json.loads(result.message))
+        except ValueError:
+            self.get_logger().warning(f'{name}: endpoint_status is not JSON')
 
     def _reports(self, names):
         """{node: endpoint report} of the nodes that answer, asked all at once."""

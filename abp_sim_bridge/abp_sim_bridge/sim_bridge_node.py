@@ -14,6 +14,8 @@ Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /joint_states (sensor_msgs/JointState, 13 joints), /odom (nav_msgs/Odometry)
              /camera/image_raw (sensor_msgs/Image), /camera/camera_info (reliable: a
              subscriber chooses sensor data QoS or reliable; abp_common.qos)
+             /camera/image_raw/compressed (sensor_msgs/CompressedImage, JPEG at
+             `jpeg_quality`; with `publish_compressed`, encoded only while subscribed)
              /abp/sim/ground_truth (abp_msgs/SimGroundTruth, transient local;
              TESTS AND BENCHMARKS ONLY)
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
@@ -67,7 +69,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import MultiThreadedExecutor
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image, JointState
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -104,6 +106,7 @@ from .sim_timing import (
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME = 'odom'
+COMPRESSED_SUFFIX = '/compressed'   # image_transport's topic of the compressed transport
 COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
@@ -180,6 +183,9 @@ class SimBridgeNode(ManagedNode):
         self._joint_pub = self.create_publisher(JointState, names.JOINT_STATES, qos.RELIABLE)
         self._odom_pub = self.create_publisher(Odometry, names.ODOM, qos.RELIABLE)
         self._image_pub = self.create_publisher(Image, names.IMAGE, qos.CAMERA_PUBLISHER)
+        self._compressed_pub = (self.create_publisher(
+            CompressedImage, names.IMAGE + COMPRESSED_SUFFIX, qos.CAMERA_PUBLISHER)
+            if self.config.values['publish_compressed'] else None)
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
                                                qos.CAMERA_PUBLISHER)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
@@ -418,6 +424,11 @@ class SimBridgeNode(ManagedNode):
                 info = self._camera_info
                 info.header.stamp = frame.stamp
                 self._image_pub.publish(msg)
+                # Encoded only for a subscriber, as image_transport's publishers do.
+                if self._compressed_pub is not None and \
+                        self._compressed_pub.get_subscription_count() > 0:
+                    self._compressed_pub.publish(sim_messages.compressed_image(
+                        img, camera.encoding, self.config.values['jpeg_quality'], msg.header))
                 self._info_pub.publish(info)
                 self._render_idle.set()
         except Exception:  # noqa: BLE001

@@ -1,11 +1,12 @@
 """The sim bridge's outgoing messages built from the simulation's state: stamps, odometry,
 the ground truth and the camera info (message filling only; the node publishes them)."""
 
+import cv2
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, CompressedImage
 
 from abp_description.frames import quaternion_from_yaw, rot_z
 from abp_msgs.msg import SimGroundTruth
@@ -67,3 +68,13 @@ def camera_info(intrinsics):
     msg.r = np.eye(3).ravel().tolist()
     msg.p = np.hstack([K, np.zeros((3, 1))]).ravel().tolist()
     return msg
+
+
+def compressed_image(image, encoding, quality, header):
+    """A frame as image_transport's `compressed` transport sends it: JPEG, format
+    '<encoding>; jpeg compressed <encoding>' (mono8 or bgr8 frames)."""
+    ok, buf = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f'JPEG encoding of a {encoding} frame failed')
+    return CompressedImage(header=header, format=f'{encoding}; jpeg compressed {encoding}',
+                           data=buf.tobytes())

@@ -12,10 +12,9 @@ Actions:     /<controller>/follow_joint_trajectory (control_msgs/FollowJointTraj
              for the same four controllers
 Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /joint_states (sensor_msgs/JointState, 13 joints), /odom (nav_msgs/Odometry)
-             /camera/image_raw (sensor_msgs/Image), /camera/camera_info (reliable: a
-             subscriber chooses sensor data QoS or reliable; abp_common.qos)
-             /camera/image_raw/compressed (sensor_msgs/CompressedImage, JPEG at
-             `jpeg_quality`; with `publish_compressed`, encoded only while subscribed)
+             /camera/image_raw (sensor_msgs/Image; JPEG on .../compressed with
+             publish_compressed), /camera/camera_info (reliable: a subscriber chooses
+             sensor data QoS or reliable; abp_common.qos)
              /abp/sim/ground_truth (abp_msgs/SimGroundTruth, transient local;
              TESTS AND BENCHMARKS ONLY)
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
@@ -106,7 +105,6 @@ from .sim_timing import (
 from .worlds import check_rendering, make_world
 
 ODOM_FRAME = 'odom'
-COMPRESSED_SUFFIX = '/compressed'   # image_transport's topic of the compressed transport
 COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
 
 
@@ -184,7 +182,7 @@ class SimBridgeNode(ManagedNode):
         self._odom_pub = self.create_publisher(Odometry, names.ODOM, qos.RELIABLE)
         self._image_pub = self.create_publisher(Image, names.IMAGE, qos.CAMERA_PUBLISHER)
         self._compressed_pub = (self.create_publisher(
-            CompressedImage, names.IMAGE + COMPRESSED_SUFFIX, qos.CAMERA_PUBLISHER)
+            CompressedImage, sim_messages.COMPRESSED_IMAGE, qos.CAMERA_PUBLISHER)
             if self.config.values['publish_compressed'] else None)
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
                                                qos.CAMERA_PUBLISHER)
@@ -414,22 +412,13 @@ class SimBridgeNode(ManagedNode):
                         camera.close()
                     camera = frame.camera
                 img = camera.render(frame.snapshot)
-                msg = Image()
-                msg.header.stamp = frame.stamp
-                msg.header.frame_id = self.intrinsics.frame_id
-                msg.height, msg.width = img.shape[:2]
-                msg.encoding = camera.encoding
-                msg.step = int(img.strides[0])
-                msg.data = img.tobytes()
-                info = self._camera_info
-                info.header.stamp = frame.stamp
+                msg = sim_messages.image(img, camera.encoding, frame.stamp,
+                                         self.intrinsics.frame_id)
+                self._camera_info.header.stamp = frame.stamp
                 self._image_pub.publish(msg)
-                # Encoded only for a subscriber, as image_transport's publishers do.
-                if self._compressed_pub is not None and \
-                        self._compressed_pub.get_subscription_count() > 0:
-                    self._compressed_pub.publish(sim_messages.compressed_image(
-                        img, camera.encoding, self.config.values['jpeg_quality'], msg.header))
-                self._info_pub.publish(info)
+                sim_messages.publish_compressed(self._compressed_pub, img, camera.encoding,
+                                                self.config.values['jpeg_quality'], msg.header)
+                self._info_pub.publish(self._camera_info)
                 self._render_idle.set()
         except Exception:  # noqa: BLE001
             if self._stop.is_set() or not self.context.ok():

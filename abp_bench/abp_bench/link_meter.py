@@ -47,6 +47,7 @@ WORKSTATION_EXTRA = ('lifecycle_manager', 'recognize_client', 'soak_driver', 'li
 DEFAULT_STAMPS = {'robot': ['/camera/camera_info'],
                   'workstation': [names.absolute(names.BELIEF, '')]}
 SCAN_PERIOD_S = 1.0
+INPUT_NODE_SUFFIX = '_inputs'
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 
@@ -55,6 +56,9 @@ def side_of(node_name, perception=ROBOT_PART):
     `perception`)."""
     workstation = ({n.name for n in graph_nodes(part=WORKSTATION_PART, perception=perception)}
                    | set(WORKSTATION_EXTRA))
+    # A node's hidden input node (abp_common.input_node, `_<owner>_inputs`) is its owner's.
+    if node_name.startswith('_') and node_name.endswith(INPUT_NODE_SUFFIX):
+        node_name = node_name[1:-len(INPUT_NODE_SUFFIX)]
     return 'workstation' if node_name in workstation else 'robot'
 
 

@@ -68,6 +68,18 @@
 #                        Ctrl-C like --serve; workstation = belief, planner, the lifecycle
 #                        manager (it brings up the robot's nodes over the network) and the
 #                        goal. Give both parts the same graph options.       (default all)
+#   --perception-on P    robot | workstation: where the tag detector and the aspect matcher
+#                        run when the graph is split (default robot). workstation: the
+#                        detector reads camera/image_raw/compressed (JPEG, image_transport's
+#                        compressed transport), which the sim bridge publishes (on a robot,
+#                        its camera driver must); images cross the link
+#   --jpeg-quality Q     with --perception-on workstation: the sim's JPEG quality (default 90)
+#   --discovery-server HOST:PORT  DDS discovery through a Fast DDS discovery server instead
+#                        of multicast (ROS_DISCOVERY_SERVER for every node); the part on the
+#                        host that owns HOST starts the server there (fast-discovery-server)
+#
+# ROS_SECURITY_ENABLE=true (SROS2) is refused at start, naming why, when this machine's
+# rmw cannot do DDS Security (the PyPI Fast DDS; abp_bringup.security_check).
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
@@ -76,8 +88,9 @@ speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco
 tables=""; dictionary=""; robot_profile=""; models_given=0
 respawn=1; serve=0; record_images=false; one_process=0; part=all
 operator=""; camera=""; calibration=""; camera_pose="0 0 0.4 0 45 0"; operator_terminal=/dev/tty
+perception_on=robot; jpeg_quality=""; discovery_server=""
 wrong_action_fraction=""; operator_silent=false
-usage() { sed -n '2,70p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
+usage() { sed -n '2,84p' "${BASH_SOURCE[0]}" | sed 's/^# \{0,1\}//'; }
 die() { echo "[start_graph] error: $*" >&2; exit 2; }
 # A YAML single-quoted string (a path may hold any character; ' is written twice).
 yaml_string() { printf "'%s'" "${1//\'/\'\'}"; }
@@ -90,6 +103,9 @@ while [ $# -gt 0 ]; do
     --serve) serve=1; shift ;;
     --one-process) one_process=1; shift ;;
     --part) part="${2:?--part needs a value}"; shift 2 ;;
+    --perception-on) perception_on="${2:?--perception-on needs robot or workstation}"; shift 2 ;;
+    --jpeg-quality) jpeg_quality="${2:?--jpeg-quality needs a value}"; shift 2 ;;
+    --discovery-server) discovery_server="${2:?--discovery-server needs HOST:PORT}"; shift 2 ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
     --models) models="${2:?--models needs a value}"; models_given=1; shift 2 ;;
     --robot-profile) robot_profile="${2:?--robot-profile needs a file}"; shift 2 ;;
@@ -119,6 +135,19 @@ while [ $# -gt 0 ]; do
 done
 [[ "$world" =~ ^(mujoco|rules)$ ]] || die "--world must be mujoco or rules"
 [[ "$part" =~ ^(robot|workstation|all)$ ]] || die "--part must be robot, workstation or all"
+[[ "$perception_on" =~ ^(robot|workstation)$ ]] || die "--perception-on must be robot or workstation"
+if [ -n "$jpeg_quality" ]; then
+  [ "$perception_on" = workstation ] || die "--jpeg-quality goes with --perception-on workstation"
+  [[ "$jpeg_quality" =~ ^[0-9]+$ ]] && [ "$jpeg_quality" -ge 1 ] && [ "$jpeg_quality" -le 100 ] \
+    || die "--jpeg-quality must be an integer from 1 to 100"
+fi
+[ "$perception_on" = robot ] || [ -z "$operator" ] \
+  || die "--perception-on workstation splits the sim or robot graph: leave out --operator"
+if [ -n "$discovery_server" ]; then
+  [[ "$discovery_server" =~ ^([0-9]{1,3}(\.[0-9]{1,3}){3}|[A-Za-z0-9][A-Za-z0-9.-]*):([0-9]{1,5})$ ]] \
+    && [ "${BASH_REMATCH[3]}" -ge 1 ] && [ "${BASH_REMATCH[3]}" -le 65535 ] \
+    || die "--discovery-server must be HOST:PORT, e.g. 192.168.1.20:11811"
+fi
 [ -n "$tables" ] || { [ "$world" = rules ] && [ "$robot" = 0 ] && tables=paper || tables=corrected; }
 [[ "$tables" =~ ^(corrected|paper)$ ]] || die "--tables must be corrected or paper"
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
@@ -176,6 +205,10 @@ esac
 # shellcheck disable=SC1091
 set +u; source "$REPO/scripts/env.sh"; set -u
 
+# SROS2 asked for on a machine whose rmw cannot do it: say so now, not as an rcl error
+# in every node's log or as a graph that runs unprotected (docs/OFFBOARD.md).
+python -m abp_bringup.security_check || exit 2
+
 # The robot profile: checked here (a bad one names its file and key), given to every node
 # (/**: the nodes that know the robot declare robot_profile), and its learned model set is
 # the default of --models.
@@ -209,7 +242,7 @@ PY
 belief_topic="${topics[0]}"; observation_topic="${topics[1]}"
 # The managed nodes this part starts (all of them unless the graph is split, --part).
 graph=sim; [ "$robot" = 1 ] && graph=robot; [ -n "$operator" ] && graph=$( [ "$operator" = scripted ] && echo scripted || echo operator)
-part_nodes=" $(python -m abp_common.graph_nodes --graph "$graph" --part "$part" | cut -d' ' -f1 | tr '\n' ' ')"
+part_nodes=" $(python -m abp_common.graph_nodes --graph "$graph" --part "$part" --perception "$perception_on" | cut -d' ' -f1 | tr '\n' ' ')"
 action_topic="${topics[2]}"; plan_topic="${topics[3]}"
 
 config="$(python -c 'from ament_index_python.packages import get_package_share_directory as g; print(g("abp_bringup"))')/config/abp.yaml"
@@ -238,6 +271,20 @@ if [ "$part" = all ] && [ -z "${FASTRTPS_DEFAULT_PROFILES_FILE:-}${FASTDDS_DEFAU
   fi
 fi
 export FASTDDS_BUILTIN_TRANSPORTS="${FASTDDS_BUILTIN_TRANSPORTS:-UDPv4}"
+# A discovery server: every participant (Fast DDS reads ROS_DISCOVERY_SERVER; the position
+# in the list is the server's id, 0 here) is its client, so no multicast is needed.
+if [ -n "$discovery_server" ]; then
+  export ROS_DISCOVERY_SERVER="$discovery_server"
+  server_host="${discovery_server%:*}"; server_port="${discovery_server##*:}"
+  # This host owns the server when it can bind the server's address.
+  server_here="$(python -c '
+import socket, sys
+try:
+    socket.socket(socket.AF_INET, socket.SOCK_DGRAM).bind((socket.gethostbyname(sys.argv[1]), 0))
+    print(1)
+except OSError:
+    print(0)' "$server_host")"
+fi
 log_dir="${log_dir:-$REPO/log/graph-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$log_dir"
 model_params="$log_dir/model_set.yaml"
@@ -357,6 +404,23 @@ start() {
   pids+=("$!")
 }
 
+if [ "${server_here:-0}" = 1 ]; then
+  # The PyPI wheels ship fast-discovery-server without the path to their own libraries.
+  server_libs="$(python -c '
+import glob, os, sys
+site = glob.glob(os.path.join(sys.prefix, "lib", "python3*", "site-packages", "ros_fastrtps.libs"))
+print(":".join([os.path.join(sys.prefix, "lib"), *site]))')"
+  command -v fast-discovery-server >/dev/null 2>&1 || die "--discovery-server: fast-discovery-server is not on PATH (Fast DDS's tools)"
+  server_args=(-i 0 -l "$server_host" -p "$server_port")
+  # Split: the participant lease of fastdds_link.xml, as every node of the graph.
+  [ "$part" = all ] || server_args+=(-x "${config%/abp.yaml}/fastdds_discovery_server.xml")
+  : > "$log_dir/discovery_server.log"
+  LD_LIBRARY_PATH="$server_libs${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" \
+    supervise discovery_server "$log_dir/discovery_server.log" fast-discovery-server "${server_args[@]}" &
+  pids+=("$!")
+  echo "[start_graph] discovery server on $discovery_server (server id 0; log $log_dir/discovery_server.log)"
+fi
+[ -n "$discovery_server" ] && echo "[start_graph] discovery through the server at $discovery_server (ROS_DISCOVERY_SERVER)"
 echo "[start_graph] $( [ -n "$operator" ] && echo "operator ($operator)" || { [ "$robot" = 1 ] && echo robot || echo "sim ($world world)"; } ) graph${namespace:+ under /$namespace}$( [ "$part" = all ] || echo ", $part part")${robot_profile:+, robot profile $robot_profile}, models $models$( [ -f "$models" ] || echo " ($tables tables)" ), planner $planner, seed $seed; logs in $log_dir"
 if [ -n "$operator" ]; then
   # A camera that does not move and a person for the skills (docs/OPERATOR.md): no sim
@@ -386,14 +450,21 @@ if [ -n "$operator" ]; then
     start_managed abp_planner planner -p "planner_mode:=$planner" -p "max_actions:=$max_actions"
 fi
 # The sim or the robot (not indented, so that this block stays as it was).
+# Perception on the workstation: JPEG frames cross the link, not raw ones (a mono8 frame of
+# the sim is ~300 KB: 10 a second would fill a 20 Mbit/s link).
+compressed_args=(); transport_args=()
+if [ "$perception_on" = workstation ]; then
+  compressed_args=(-p publish_compressed:=true -p "jpeg_quality:=${jpeg_quality:-90}")
+  transport_args=(-p image_transport:=compressed)
+fi
 if [ -z "$operator" ]; then
 if [ "$robot" = 0 ]; then
   start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
-    -p "cube_seed:=$seed" -p "speedup:=$speedup"
+    -p "cube_seed:=$seed" -p "speedup:=$speedup" "${compressed_args[@]}"
 fi
 # The robot's tf tree (/tf, /tf_static, robot_description) from /joint_states and /odom.
 start_managed abp_description robot_state
-start_managed abp_perception artag_detector
+start_managed abp_perception artag_detector "${transport_args[@]}"
 start_managed abp_perception aspect_matcher
 start_managed abp_belief belief
 # The four action servers in one process: four processes, each with its own executor

@@ -56,6 +56,25 @@ def test_the_two_parts_split_each_graph(graph):
         graph_nodes(graph, 'moon')
 
 
+@pytest.mark.parametrize('graph', (SIM, ROBOT))
+def test_perception_can_run_on_the_workstation(graph):
+    """--perception-on workstation: the detector and matcher join the belief and planner;
+    the parts still split the graph, each node once, in its order."""
+    robot = graph_nodes(graph, ROBOT_PART, perception=WORKSTATION_PART)
+    workstation = graph_nodes(graph, WORKSTATION_PART, perception=WORKSTATION_PART)
+    assert [n.name for n in workstation] == ['artag_detector', 'aspect_matcher', 'belief',
+                                             'planner']
+    assert set(robot) | set(workstation) == set(graph_nodes(graph))
+    assert not set(robot) & set(workstation)
+    assert graph_nodes(graph, ALL_PARTS, perception=WORKSTATION_PART) == graph_nodes(graph)
+    with pytest.raises(ValueError, match='perception must be one of'):
+        graph_nodes(graph, ROBOT_PART, perception='moon')
+    listed = subprocess.run([sys.executable, '-m', 'abp_common.graph_nodes', '--graph', graph,
+                             '--part', 'workstation', '--perception', 'workstation'],
+                            capture_output=True, text=True, check=True).stdout.split('\n')
+    assert [line.split()[0] for line in listed if line] == [n.name for n in workstation]
+
+
 def start_managed(text):
     """[(package, executable)] of the start_managed lines of a part of start_graph.sh."""
     return re.findall(r'^\s*(?:\S+=\S+\s+)*start_managed (\w+) (\w+)', text, re.M)

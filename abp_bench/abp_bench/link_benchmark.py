@@ -2,9 +2,10 @@
 namespaces of this machine (docs/OFFBOARD.md): episodes, link drops, bytes per topic.
 
     sudo python -m abp_bench.link_benchmark [--episodes 10] [--drops 5] [--past-timeout 5]
-        [--no-multicast] [--loopback] [--world rules] [--seed S] [--rate-mbit 20]
-        [--queue-ms 20] [--link-down-s 10] [--node-return-timeout 8] [--json FILE]
-        [--no-build]
+        [--no-multicast [--discovery static-peers|server]] [--loopback]
+        [--perception-on robot|workstation] [--jpeg-quality Q] [--world rules] [--seed S]
+        [--rate-mbit 20] [--queue-ms 20] [--link-down-s 10] [--node-return-timeout 8]
+        [--json FILE] [--no-build]
 
 `start_graph.sh --part robot` runs in one namespace and `--part workstation --serve` in
 the other, joined by a veth pair (abp_bench.netns_link: `tbf` at --rate-mbit with
@@ -23,7 +24,12 @@ that crosses the link, and the veth's counters give the total on the wire. With
 `--loopback` both parts run in the same namespace (over its loopback, same transports):
 the baseline for the latency from image (its camera_info, published with it) to the
 belief that includes it. `--no-multicast`: multicast off on the link, discovery through
-ROS_STATIC_PEERS. Needs root. Exit code 0 when every episode met its expectation.
+ROS_STATIC_PEERS (`--discovery static-peers`, the default) or a Fast DDS discovery server
+on the robot's host (`--discovery server`: `start_graph.sh --discovery-server`; the meters
+run as its super clients, SUPER_CLIENT_PROFILE, to see every topic).
+`--perception-on workstation`: the detector and matcher run on the workstation and read
+JPEG frames (`--jpeg-quality`) across the link. Needs root. Exit code 0 when every
+episode met its expectation.
 """
 
 import argparse
@@ -43,6 +49,33 @@ from .netns_link import ROBOT, WORKSTATION, TwoHostLink, link_environment, unava
 
 READY_TIMEOUT_S = 600.0
 EPISODE_TIMEOUT_S = 600.0
+DISCOVERY_SERVER_PORT = 11811
+# A participant that sees every topic through the discovery server (id 0), as ros2cli's
+# daemon must; the lease of fastdds_link.xml, as every process of the split graph.
+SUPER_CLIENT_PROFILE = """<?xml version="1.0" encoding="UTF-8" ?>
+<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">
+  <profiles>
+    <participant profile_name="abp_link_super_client" is_default_profile="true">
+      <rtps>
+        <builtin>
+          <discovery_config>
+            <discoveryProtocol>SUPER_CLIENT</discoveryProtocol>
+            <discoveryServersList>
+              <RemoteServer prefix="44.53.00.5f.45.50.52.4f.53.49.4d.41">
+                <metatrafficUnicastLocatorList>
+                  <locator><udpv4><address>{address}</address><port>{port}</port></udpv4></locator>
+                </metatrafficUnicastLocatorList>
+              </RemoteServer>
+            </discoveryServersList>
+            <leaseDuration><sec>5</sec></leaseDuration>
+            <leaseAnnouncement><sec>1</sec></leaseAnnouncement>
+          </discovery_config>
+        </builtin>
+      </rtps>
+    </participant>
+  </profiles>
+</dds>
+"""
 
 
 class Process:
@@ -132,13 +165,28 @@ def orchestrate(args):
             env = {**os.environ, **link_environment(), 'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'}
             env.pop('ROS_STATIC_PEERS', None)
             graph = ['--world', args.world, '--seed', str(args.seed), '--no-build',
-                     '--params', str(params), '--speedup', str(args.speedup)]
-            envs = {}
+                     '--params', str(params), '--speedup', str(args.speedup),
+                     '--perception-on', args.perception_on]
+            if args.jpeg_quality is not None:
+                graph += ['--jpeg-quality', str(args.jpeg_quality)]
+            server = f'{link.address[ROBOT]}:{DISCOVERY_SERVER_PORT}'
+            if args.discovery == 'server':
+                graph += ['--discovery-server', server]
+            envs, meter_envs = {}, {}
             for part, side in ((ROBOT, ROBOT), (WORKSTATION, ws_side)):
                 envs[part] = dict(env)
-                if args.no_multicast and not args.loopback:
+                if args.no_multicast and not args.loopback and args.discovery == 'static-peers':
                     envs[part]['ROS_STATIC_PEERS'] = link.address[
                         WORKSTATION if part == ROBOT else ROBOT]
+                meter_envs[part] = dict(envs[part])
+                if args.discovery == 'server':
+                    # start_graph.sh sets ROS_DISCOVERY_SERVER for the graph; the driver
+                    # is a client like the nodes, the meters super clients.
+                    envs[part]['ROS_DISCOVERY_SERVER'] = server
+                    profile = work / 'super_client.xml'
+                    profile.write_text(SUPER_CLIENT_PROFILE.format(
+                        address=link.address[ROBOT], port=DISCOVERY_SERVER_PORT))
+                    meter_envs[part]['FASTRTPS_DEFAULT_PROFILES_FILE'] = str(profile)
                 extra = ['--serve'] if part == WORKSTATION else []
                 processes.append(Process(link.command(side, [
                     repo_root() / 'scripts' / 'start_graph.sh', '--part', part, *graph,
@@ -150,8 +198,9 @@ def orchestrate(args):
             meters = {}
             for part, side in ((ROBOT, ROBOT), (WORKSTATION, ws_side)):
                 meters[part] = Process(link.command(side, [
-                    sys.executable, '-m', 'abp_bench.link_meter', '--side', part, '--out',
-                    work / f'meter-{part}.json']), envs[part])
+                    sys.executable, '-m', 'abp_bench.link_meter', '--side', part,
+                    '--perception', args.perception_on, '--out',
+                    work / f'meter-{part}.json']), meter_envs[part])
                 processes.append(meters[part])
                 meters[part].wait_line('metering', 60)
             started = time.time()
@@ -186,6 +235,8 @@ def orchestrate(args):
     summary = {
         'rate_mbit': args.rate_mbit, 'queue_ms': args.queue_ms, 'loopback': args.loopback,
         'multicast': not args.no_multicast, 'world': args.world, 'seed': args.seed,
+        'discovery': ('multicast' if not args.no_multicast else args.discovery),
+        'perception_on': args.perception_on, 'jpeg_quality': args.jpeg_quality,
         'seconds': round(elapsed, 1),
         'wire_bytes_per_s': {k: round(v, 1) for k, v in wire.items()},
         'wire_mbit_per_s': round(sum(wire.values()) * 8 / 1e6, 3),
@@ -216,8 +267,17 @@ def main(argv=None):
                         help="the planner's node_return_timeout, s (8)")
     parser.add_argument('--no-multicast', action='store_true',
                         help='multicast off on the link; discovery by ROS_STATIC_PEERS')
+    parser.add_argument('--discovery', choices=('static-peers', 'server'),
+                        default='static-peers',
+                        help='with --no-multicast: ROS_STATIC_PEERS, or a Fast DDS discovery '
+                             'server on the robot host (default static-peers)')
     parser.add_argument('--loopback', action='store_true',
                         help='both parts in one namespace: the latency baseline')
+    parser.add_argument('--perception-on', choices=('robot', 'workstation'), default='robot',
+                        help='where the detector and matcher run: workstation = JPEG frames '
+                             'across the link (default robot)')
+    parser.add_argument('--jpeg-quality', type=int, choices=range(1, 101), metavar='1-100',
+                        help="with --perception-on workstation: the sim's JPEG quality (90)")
     parser.add_argument('--world', choices=('rules', 'mujoco'), default='rules')
     parser.add_argument('--speedup', type=float, default=10.0)
     parser.add_argument('--seed', type=int, default=0)
@@ -227,6 +287,10 @@ def main(argv=None):
     parser.add_argument('--json', help='write the summary here')
     parser.add_argument('--no-build', action='store_true')
     args = parser.parse_args(argv)
+    if args.discovery == 'server' and (args.loopback or not args.no_multicast):
+        parser.error('--discovery server goes with --no-multicast, across the link')
+    if args.jpeg_quality is not None and args.perception_on != 'workstation':
+        parser.error('--jpeg-quality goes with --perception-on workstation')
     if args.loopback:
         args.drops = args.past_timeout = 0   # no link to drop
     return orchestrate(args)

@@ -15,6 +15,10 @@ same on both sides: one machine) at which each stamp first arrived on the topics
 `--stamps` (by default camera_info, published with each image, on the robot side; the
 belief on the workstation side): the stamp is read from the message's std_msgs/Header,
 which every such message starts with.
+
+With discovery through a Fast DDS discovery server, a plain client learns only the
+endpoints of the topics it uses itself: the meter must run as a super client (a Fast DDS
+profile, abp_bench.link_benchmark writes one) to see every topic.
 """
 
 import argparse
@@ -33,7 +37,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from abp_common import names
-from abp_common.graph_nodes import WORKSTATION_PART, graph_nodes
+from abp_common.graph_nodes import PERCEPTION_PARTS, ROBOT_PART, WORKSTATION_PART, graph_nodes
 
 SIDES = ('robot', 'workstation')
 # Nodes of the workstation part besides the graph's: the manager and the clients that
@@ -43,12 +47,18 @@ WORKSTATION_EXTRA = ('lifecycle_manager', 'recognize_client', 'soak_driver', 'li
 DEFAULT_STAMPS = {'robot': ['/camera/camera_info'],
                   'workstation': [names.absolute(names.BELIEF, '')]}
 SCAN_PERIOD_S = 1.0
+INPUT_NODE_SUFFIX = '_inputs'
 UNKNOWN_NODE = '_NODE_NAME_UNKNOWN_'
 
 
-def side_of(node_name):
-    """The part a node of the graph runs in, by its name."""
-    workstation = {n.name for n in graph_nodes(part=WORKSTATION_PART)} | set(WORKSTATION_EXTRA)
+def side_of(node_name, perception=ROBOT_PART):
+    """The part a node of the graph runs in, by its name (the detector and matcher in
+    `perception`)."""
+    workstation = ({n.name for n in graph_nodes(part=WORKSTATION_PART, perception=perception)}
+                   | set(WORKSTATION_EXTRA))
+    # A node's hidden input node (abp_common.input_node, `_<owner>_inputs`) is its owner's.
+    if node_name.startswith('_') and node_name.endswith(INPUT_NODE_SUFFIX):
+        node_name = node_name[1:-len(INPUT_NODE_SUFFIX)]
     return 'workstation' if node_name in workstation else 'robot'
 
 
@@ -71,9 +81,10 @@ def header_stamp_ns(serialized):
 
 
 class TopicMeter:
-    def __init__(self, node, side, stamp_topics):
+    def __init__(self, node, side, stamp_topics, perception=ROBOT_PART):
         self.node = node
         self.side = side
+        self.perception = perception
         self.stamp_topics = set(stamp_topics)
         self.lock = threading.Lock()
         self.topics = {}        # topic -> {'type', 'messages', 'bytes', 'first', 'last', ...}
@@ -93,8 +104,10 @@ class TopicMeter:
                        if i.node_name != own]
         if not publishers or UNKNOWN_NODE in publishers + subscribers:
             return False, []
-        remote = sorted({s for s in subscribers if side_of(s) != self.side})
-        return all(side_of(p) == self.side for p in publishers) and bool(remote), remote
+        remote = sorted({s for s in subscribers
+                         if side_of(s, self.perception) != self.side})
+        return all(side_of(p, self.perception) == self.side for p in publishers) \
+            and bool(remote), remote
 
     def scan(self):
         for topic, types in self.node.get_topic_names_and_types():
@@ -143,6 +156,8 @@ def main(argv=None):
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--side', choices=SIDES, required=True)
     parser.add_argument('--out', help='the JSON report (default: stdout)')
+    parser.add_argument('--perception', choices=PERCEPTION_PARTS, default=ROBOT_PART,
+                        help='the part the detector and matcher run in (default robot)')
     parser.add_argument('--stamps', nargs='*', default=None,
                         help='topics whose header stamps are timed (default: camera_info on '
                              'the robot, the belief on the workstation)')
@@ -153,7 +168,7 @@ def main(argv=None):
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node(f'link_meter_{args.side}')
     meter = TopicMeter(node, args.side, DEFAULT_STAMPS[args.side] if args.stamps is None
-                       else args.stamps)
+                       else args.stamps, args.perception)
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     print('metering', flush=True)

@@ -13,6 +13,12 @@ show it. The workstation's lifecycle manager brings the robot's nodes up over th
 - Without multicast (off on the link; ROS_STATIC_PEERS names the other host): the link
   goes down past the planner's node_return_timeout; the goal aborts cleanly naming the
   lost nodes, and once the link is back the next goal succeeds, with no node restarted.
+- Without multicast and without static peers: discovery through a Fast DDS discovery
+  server that the robot part starts on its host (`start_graph.sh --discovery-server`,
+  ROS_DISCOVERY_SERVER in every process); an episode ends correct.
+- Perception on the workstation (`--perception-on workstation`): the detector there reads
+  the sim's JPEG frames across the link (camera/image_raw/compressed), never the raw
+  ones; an episode ends correct.
 
 Rules world (fast), a uniform cube. Needs root and iproute2: skipped otherwise. The
 namespaces (random names) are removed, and every process in them killed, whatever the
@@ -70,7 +76,8 @@ class SplitGraph:
     """The two parts of one graph, each in its namespace, and goals sent from the
     workstation's namespace."""
 
-    def __init__(self, ros_processes, link, tmp_path, static_peers, params=None):
+    def __init__(self, ros_processes, link, tmp_path, static_peers, params=None,
+                 discovery_server=None, graph_options=()):
         self.processes, self.link, self.tmp_path = ros_processes, link, tmp_path
         self.index, self.object_id = uniform_cube()
         # UDP only, and one participant lease for every process on both sides.
@@ -80,6 +87,12 @@ class SplitGraph:
         graph = ['--world', 'rules', '--seed', SEED, '--object', self.index, '--no-build']
         if params:
             graph += ['--params', params]
+        graph += list(graph_options)
+        if discovery_server:
+            graph += ['--discovery-server', discovery_server]
+            # The goals' clients are the server's clients too (start_graph.sh sets it
+            # for the graph's nodes).
+            self.env['ROS_DISCOVERY_SERVER'] = discovery_server
         self.log_dir = {side: tmp_path / f'logs-{side}' for side in (ROBOT, WORKSTATION)}
         self.parts = {}
         for side, extra in ((ROBOT, ()), (WORKSTATION, ('--serve',))):
@@ -231,6 +244,61 @@ def test_a_link_down_past_the_timeout_aborts_cleanly_without_multicast(
     for node in ('sim_bridge', 'skill_servers', 'aspect_matcher', 'belief', 'planner'):
         side = WORKSTATION if node in ('belief', 'planner') else ROBOT
         assert 'restarting it' not in graph.log(side, node), node
+    graph.stop()
+    ros_processes.stop_all()
+    assert not graph_processes(), 'the graph left processes behind'
+
+
+@pytest.mark.timeout(READY_TIMEOUT_S + EPISODE_TIMEOUT_S + 120)
+def test_discovery_through_a_discovery_server_without_multicast(ros_processes, link, tmp_path):
+    link.set_multicast(False)
+    assert not any(link.multicast_reaches(side) for side in (ROBOT, WORKSTATION))
+    server = f'{link.address[ROBOT]}:11811'
+    graph = SplitGraph(ros_processes, link, tmp_path, static_peers=False,
+                       discovery_server=server)
+    assert 'ROS_STATIC_PEERS' not in graph.env
+    # The robot part owns the server's address: it started the server there, and only it.
+    robot_log = (graph.log_dir[ROBOT] / 'discovery_server.log')
+    assert robot_log.exists(), graph.logs()
+    assert not (graph.log_dir[WORKSTATION] / 'discovery_server.log').exists()
+    # (Fast DDS binds its unicast port on every address, filtering by interface.)
+    def server_sockets(side):
+        return [line for line in link.sockets(side)
+                if ':11811 ' in line and 'fast-discovery' in line]
+    assert server_sockets(ROBOT) and not server_sockets(WORKSTATION), link.sockets(ROBOT)
+    before = {side: link.counters(side) for side in (ROBOT, WORKSTATION)}
+    proc, result_file = graph.goal('server')
+    result = graph.finish(proc, result_file)
+    assert result['correct'] and result['object_id'] == graph.object_id, \
+        (result, graph.logs())
+    assert_the_traffic_crossed_the_link(link, before)
+    assert_fast_dds_uses_the_link_not_shared_memory(link)
+    graph.stop()
+    ros_processes.stop_all()
+    assert not graph_processes(), 'the graph left processes behind'
+    assert not graph_processes(markers=(b'fast-discovery-server',)), \
+        'the discovery server outlived the robot part'
+
+
+@pytest.mark.timeout(READY_TIMEOUT_S + EPISODE_TIMEOUT_S + 120)
+def test_perception_on_the_workstation_reads_jpeg_across_the_link(ros_processes, link,
+                                                                  tmp_path):
+    graph = SplitGraph(ros_processes, link, tmp_path, static_peers=False,
+                       graph_options=['--perception-on', 'workstation', '--jpeg-quality', '90'])
+    assert (graph.log_dir[WORKSTATION] / 'artag_detector.log').exists()
+    assert not (graph.log_dir[ROBOT] / 'artag_detector.log').exists()
+    before = {side: link.counters(side) for side in (ROBOT, WORKSTATION)}
+    proc, result_file = graph.goal('jpeg')
+    result = graph.finish(proc, result_file)
+    assert result['correct'] and result['object_id'] == graph.object_id, \
+        (result, graph.logs())
+    detector_log = graph.log(WORKSTATION, 'artag_detector')
+    assert 'in compressed images on /camera/image_raw/compressed' in detector_log
+    assert 'rejected input on /camera/image_raw/compressed (decode' not in detector_log
+    # The detector runs only on the workstation and the images come only from the robot:
+    # a correct episode (its observations) means the JPEG frames crossed the link.
+    assert_the_traffic_crossed_the_link(link, before)
+    assert_fast_dds_uses_the_link_not_shared_memory(link)
     graph.stop()
     ros_processes.stop_all()
     assert not graph_processes(), 'the graph left processes behind'

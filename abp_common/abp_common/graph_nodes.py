@@ -17,12 +17,17 @@ Each node also belongs to one *part* of the graph, for a split over a network
 bridge standing in for it or its drivers, the camera, perception and the skill servers,
 which drive the hardware and see every camera frame) or `workstation` (the belief and the
 planner, whose inputs are small messages). Images never cross the link in this split.
+With `perception=WORKSTATION_PART` (`start_graph.sh --perception-on workstation`) the
+tag detector and the aspect matcher move to the workstation too (the `PERCEPTION` nodes):
+the detector then reads JPEG frames (image_transport's compressed transport) across the
+link, and the matcher stays beside it, so that only images, camera_info and joint states
+cross one way and no detection goes there and back.
 
 Python users import it (abp_bringup.lifecycle_manager, abp.launch.py, abp_bench.soak);
 scripts/start_graph.sh starts the same nodes with its own per-node arguments, and
 tests/test_graph_nodes.py fails when its `start_managed` lines differ from this list.
-`python -m abp_common.graph_nodes [--graph G] [--part P]` prints `name package executable`
-lines.
+`python -m abp_common.graph_nodes [--graph G] [--part P] [--perception P]` prints
+`name package executable` lines.
 """
 
 import argparse
@@ -37,6 +42,9 @@ _SIMULATED = frozenset((SIM, SCRIPTED))
 # The parts of a graph split over a network; ALL_PARTS is both (one machine).
 ROBOT_PART, WORKSTATION_PART, ALL_PARTS = 'robot', 'workstation', 'all'
 PARTS = (ROBOT_PART, WORKSTATION_PART, ALL_PARTS)
+# The nodes that can run on either side (`perception`): the detector and its matcher.
+PERCEPTION = frozenset(('artag_detector', 'aspect_matcher'))
+PERCEPTION_PARTS = (ROBOT_PART, WORKSTATION_PART)
 
 
 class GraphNode(NamedTuple):
@@ -70,15 +78,25 @@ GRAPH = (
 )
 
 
-def graph_nodes(graph=SIM, part=ALL_PARTS):
+def part_of(node, perception=ROBOT_PART):
+    """The part `node` runs in when the graph is split, the PERCEPTION nodes in
+    `perception` (ROBOT_PART or WORKSTATION_PART)."""
+    if perception not in PERCEPTION_PARTS:
+        raise ValueError(f'perception must be one of {", ".join(PERCEPTION_PARTS)}, '
+                         f'got {perception!r}')
+    return perception if node.name in PERCEPTION else node.part
+
+
+def graph_nodes(graph=SIM, part=ALL_PARTS, perception=ROBOT_PART):
     """The nodes of `graph` (SIM, ROBOT, OPERATOR or SCRIPTED) that run in `part`
-    (ROBOT_PART, WORKSTATION_PART or ALL_PARTS), in bring-up order."""
+    (ROBOT_PART, WORKSTATION_PART or ALL_PARTS), the PERCEPTION nodes in `perception`,
+    in bring-up order."""
     if graph not in GRAPHS:
         raise ValueError(f'graph must be one of {", ".join(GRAPHS)}, got {graph!r}')
     if part not in PARTS:
         raise ValueError(f'part must be one of {", ".join(PARTS)}, got {part!r}')
     return tuple(node for node in GRAPH
-                 if graph in node.graphs and part in (ALL_PARTS, node.part))
+                 if graph in node.graphs and part in (ALL_PARTS, part_of(node, perception)))
 
 
 GRAPH_NODE_NAMES = tuple(node.name for node in graph_nodes(SIM))
@@ -91,8 +109,10 @@ def main(argv=None):
     parser.add_argument('--graph', choices=GRAPHS, default=SIM, help='which graph (default sim)')
     parser.add_argument('--part', choices=PARTS, default=ALL_PARTS,
                         help='only the nodes of this part of a split graph (default all)')
+    parser.add_argument('--perception', choices=PERCEPTION_PARTS, default=ROBOT_PART,
+                        help='the part the detector and matcher run in (default robot)')
     args = parser.parse_args(argv)
-    for node in graph_nodes(args.graph, args.part):
+    for node in graph_nodes(args.graph, args.part, args.perception):
         print(node.name, node.package, node.executable)
     return 0
 
@@ -101,6 +121,6 @@ if __name__ == '__main__':
     raise SystemExit(main())
 
 
-__all__ = ['ALL_PARTS', 'GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'PARTS', 'ROBOT',
-           'ROBOT_NODE_NAMES', 'ROBOT_PART', 'SCRIPTED', 'SIM', 'WORKSTATION_PART', 'GraphNode',
-           'graph_nodes']
+__all__ = ['ALL_PARTS', 'GRAPH', 'GRAPHS', 'GRAPH_NODE_NAMES', 'OPERATOR', 'PARTS', 'PERCEPTION',
+           'PERCEPTION_PARTS', 'ROBOT', 'ROBOT_NODE_NAMES', 'ROBOT_PART', 'SCRIPTED', 'SIM',
+           'WORKSTATION_PART', 'GraphNode', 'graph_nodes', 'part_of']

@@ -120,6 +120,12 @@ PARAMETERS = (
     # -- camera ---------------------------------------------------------------------------
     ParamSpec('camera_encoding', STRING, 'mono8', 'Image encoding.',
               choices=('mono8', 'bgr8')),
+    ParamSpec('publish_compressed', BOOL, False, 'Also publish each frame JPEG-encoded on '
+              "camera/image_raw/compressed (sensor_msgs/CompressedImage, image_transport's "
+              'compressed transport; encoded only while someone subscribes): for a tag '
+              'detector across a slow link (docs/OFFBOARD.md).', read_only=True),
+    ParamSpec('jpeg_quality', INT, 90, 'JPEG quality of camera/image_raw/compressed.',
+              (1, 100), read_only=True),
     ParamSpec('camera_noise_std', DOUBLE, 1.0, 'Gaussian image noise, grey levels.',
               (0.0, 100.0)),
     ParamSpec('camera_blur_sigma', DOUBLE, 0.5, 'Gaussian blur sigma, pixels.', (0.0, 20.0)),

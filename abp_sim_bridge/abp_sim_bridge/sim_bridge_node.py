@@ -12,8 +12,9 @@ Actions:     /<controller>/follow_joint_trajectory (control_msgs/FollowJointTraj
              for the same four controllers
 Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /joint_states (sensor_msgs/JointState, 13 joints), /odom (nav_msgs/Odometry)
-             /camera/image_raw (sensor_msgs/Image), /camera/camera_info (reliable: a
-             subscriber chooses sensor data QoS or reliable; abp_common.qos)
+             /camera/image_raw (sensor_msgs/Image; JPEG on .../compressed with
+             publish_compressed), /camera/camera_info (reliable: a subscriber chooses
+             sensor data QoS or reliable; abp_common.qos)
              /abp/sim/ground_truth (abp_msgs/SimGroundTruth, transient local;
              TESTS AND BENCHMARKS ONLY)
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
@@ -67,7 +68,7 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import MultiThreadedExecutor
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import CameraInfo, Image, JointState
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState
 from std_srvs.srv import Trigger
 from trajectory_msgs.msg import JointTrajectory
 
@@ -186,6 +187,9 @@ class SimBridgeNode(ManagedNode):
         self._joint_pub = self.create_publisher(JointState, names.JOINT_STATES, STATE_WRITER)
         self._odom_pub = self.create_publisher(Odometry, names.ODOM, STATE_WRITER)
         self._image_pub = self.create_publisher(Image, names.IMAGE, qos.CAMERA_PUBLISHER)
+        self._compressed_pub = (self.create_publisher(
+            CompressedImage, sim_messages.COMPRESSED_IMAGE, qos.CAMERA_PUBLISHER)
+            if self.config.values['publish_compressed'] else None)
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
                                                qos.CAMERA_PUBLISHER)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
@@ -414,17 +418,13 @@ class SimBridgeNode(ManagedNode):
                         camera.close()
                     camera = frame.camera
                 img = camera.render(frame.snapshot)
-                msg = Image()
-                msg.header.stamp = frame.stamp
-                msg.header.frame_id = self.intrinsics.frame_id
-                msg.height, msg.width = img.shape[:2]
-                msg.encoding = camera.encoding
-                msg.step = int(img.strides[0])
-                msg.data = img.tobytes()
-                info = self._camera_info
-                info.header.stamp = frame.stamp
+                msg = sim_messages.image(img, camera.encoding, frame.stamp,
+                                         self.intrinsics.frame_id)
+                self._camera_info.header.stamp = frame.stamp
                 self._image_pub.publish(msg)
-                self._info_pub.publish(info)
+                sim_messages.publish_compressed(self._compressed_pub, img, camera.encoding,
+                                                self.config.values['jpeg_quality'], msg.header)
+                self._info_pub.publish(self._camera_info)
                 self._render_idle.set()
         except Exception:  # noqa: BLE001
             if self._stop.is_set() or not self.context.ok():

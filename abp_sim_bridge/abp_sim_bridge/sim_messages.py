@@ -1,12 +1,15 @@
 """The sim bridge's outgoing messages built from the simulation's state: stamps, odometry,
-the ground truth and the camera info (message filling only; the node publishes them)."""
+the ground truth, the camera info and images (message filling only; the node publishes
+them)."""
 
+import cv2
 import numpy as np
 import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion
-from sensor_msgs.msg import CameraInfo
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
+from abp_common import names
 from abp_description.frames import quaternion_from_yaw, rot_z
 from abp_msgs.msg import SimGroundTruth
 
@@ -67,3 +70,32 @@ def camera_info(intrinsics):
     msg.r = np.eye(3).ravel().tolist()
     msg.p = np.hstack([K, np.zeros((3, 1))]).ravel().tolist()
     return msg
+
+# image_transport's topic of the compressed transport beside the raw images.
+COMPRESSED_IMAGE = names.IMAGE + '/compressed'
+
+
+def image(pixels, encoding, stamp, frame_id):
+    """A sensor_msgs/Image of a rendered frame (mono8 or bgr8 pixels)."""
+    msg = Image(height=pixels.shape[0], width=pixels.shape[1], encoding=encoding,
+                step=int(pixels.strides[0]), data=pixels.tobytes())
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    return msg
+
+
+def publish_compressed(publisher, pixels, encoding, quality, header):
+    """Publish the frame as JPEG on `publisher` (None: not asked for), encoded only while
+    someone subscribes, as image_transport's publishers do."""
+    if publisher is not None and publisher.get_subscription_count() > 0:
+        publisher.publish(compressed_image(pixels, encoding, quality, header))
+
+
+def compressed_image(image, encoding, quality, header):
+    """A frame as image_transport's `compressed` transport sends it: JPEG, format
+    '<encoding>; jpeg compressed <encoding>' (mono8 or bgr8 frames)."""
+    ok, buf = cv2.imencode('.jpg', image, [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise ValueError(f'JPEG encoding of a {encoding} frame failed')
+    return CompressedImage(header=header, format=f'{encoding}; jpeg compressed {encoding}',
+                           data=buf.tobytes())

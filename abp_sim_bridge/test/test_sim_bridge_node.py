@@ -27,7 +27,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from rclpy.parameter_client import AsyncParameterClient  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
-from sensor_msgs.msg import CameraInfo, Image, JointState  # noqa: E402
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image, JointState  # noqa: E402
 from sim_hand_paths import (  # noqa: E402
     CONTROLLER_JOINTS,
     DlsIK,
@@ -109,6 +109,8 @@ class Tester:  # noqa: D101
             # a best-effort reader loses most 921 KB frames on a loaded machine.
             'image': (Image, '/camera/image_raw', qos.reliable(10)),
             'camera_info': (CameraInfo, '/camera/camera_info', qos.reliable(10)),
+            'compressed': (CompressedImage, '/camera/image_raw/compressed',
+                           qos.reliable(10)),
             'ground_truth': (SimGroundTruth, '/abp/sim/ground_truth', qos.LATCHED),
         }
         for name in topics:
@@ -642,6 +644,31 @@ def test_camera_images_show_the_tags_the_ground_truth_says(ros_processes, tester
     assert expected <= cube_found <= possible, (expected, found)
     # Distractors carry ids outside the cube's tags (n_tags..49).
     assert all(i >= 7 for i in found - set(TAGS))
+
+
+def test_compressed_frames_are_the_raw_frames_in_jpeg(ros_processes, tester_factory):
+    """publish_compressed: each frame also as image_transport's compressed transport sends
+    it (format '<encoding>; jpeg compressed <encoding>'), with the raw frame's header, a
+    fraction of its size, and the same picture up to JPEG's loss at jpeg_quality."""
+    start_bridge(ros_processes, world='rules', speedup=1.0, publish_compressed=True,
+                 jpeg_quality=80, face_tags=str(TAGS).replace(' ', ''))
+    t = tester_factory('image', 'compressed')
+
+    def pair():
+        raw = {ns(m.header.stamp): m for m in t.msgs['image']}
+        return next(((raw[ns(c.header.stamp)], c) for c in reversed(t.msgs['compressed'])
+                     if ns(c.header.stamp) in raw), None)
+    assert t.spin_until(lambda: len(t.msgs['compressed']) >= 3 and pair() is not None, 30), \
+        f"{len(t.msgs['image'])} raw and {len(t.msgs['compressed'])} compressed frames"
+    raw, jpeg = pair()
+    assert jpeg.format == 'mono8; jpeg compressed mono8'
+    assert jpeg.header.frame_id == raw.header.frame_id == 'camera_optical_frame'
+    assert bytes(jpeg.data[:2]) == b'\xff\xd8', 'a JPEG stream'
+    assert len(jpeg.data) < len(raw.data) / 4, (len(jpeg.data), len(raw.data))
+    decoded = cv2.imdecode(np.frombuffer(bytes(jpeg.data), np.uint8), cv2.IMREAD_GRAYSCALE)
+    image = np.frombuffer(bytes(raw.data), np.uint8).reshape(raw.height, raw.width)
+    assert decoded.shape == image.shape
+    assert np.mean(np.abs(decoded.astype(float) - image)) < 3.0
 
 
 # -- manual actions: every mass variant, real hand trajectories -----------------------------

@@ -43,7 +43,6 @@ an image the detector refuses (`image`). camera_info and joint_states: the kinds
 """
 
 import sys
-import threading
 
 import cv2
 import numpy as np
@@ -73,9 +72,9 @@ from .camera_model import (
     UnknownFrame,
     fixed_camera_pose,
     intrinsics_from_camera_info,
-    joints_moving_frame,
     rectified_to_camera,
 )
+from .camera_pose_lookup import CameraPoseLookup, OutsideBuffer
 from .detector import TagDetector
 from .image_encodings import (
     ImageDecodeError,
@@ -86,7 +85,6 @@ from .image_encodings import (
     compressed_msg_to_gray,
     image_msg_to_gray,
 )
-from .joint_state_buffer import JointStateBuffer, OutsideBuffer
 from .node_parameters import DETECTOR_PARAMETERS, DETECTOR_SPECS
 from .region_search import RegionSearch
 
@@ -120,15 +118,12 @@ class ArtagDetectorNode(ManagedNode):
         self.frames = FrameMap(self._values['frame_map'], self.kinematics.has_frame,
                                self.camera_frame)
         self.fixed_pose = fixed_camera_pose(self._values['fixed_camera_pose'])
+        self.poses = CameraPoseLookup(
+            self.kinematics, self._values['joint_state_lookup'],
+            self._values['joint_state_buffer_s'], self._values['joint_state_tolerance_s'],
+            self.fixed_pose)
         self.rectified = self._values['image_is_rectified']
         self._rectified_pose = None          # rectified frame in the camera frame (stereo R)
-        self.joint_lookup = self._values['joint_state_lookup']
-        self.joint_buffer = JointStateBuffer(self._values['joint_state_buffer_s'],
-                                             self._values['joint_state_tolerance_s'])
-        self._camera_joints = {}             # URDF frame -> joints that move it
-        # joint_states arrive on the input node's thread; this guards the buffer and the
-        # newest joint vector that thread writes and the image callbacks read.
-        self._joint_lock = threading.Lock()
         # An image stamped after the newest joint state waits here (one at most) for the
         # joint state that reaches its stamp, as tf2's message filter waits for a transform.
         self._waiting = None
@@ -137,7 +132,6 @@ class ArtagDetectorNode(ManagedNode):
         self.search = RegionSearch(self._values['full_frame_every'],
                                    track=self._values['track_tags'])
         self._camera_key = None
-        self._joints = None
         self.health = NodeHealth(self)
         self.health.add_values(lambda: [(f'frames searched: {kind}', count)
                                         for kind, count in self.search.frames.items()])
@@ -158,7 +152,7 @@ class ArtagDetectorNode(ManagedNode):
             + ('; rectified images (P, no distortion)' if self.rectified else ''))
 
     def _lookup_text(self):
-        return ('newest at each image' if self.joint_lookup == 'latest' else
+        return ('newest at each image' if self.poses.lookup == 'latest' else
                 'interpolated at each image stamp')
 
     def activate(self):
@@ -275,13 +269,12 @@ class ArtagDetectorNode(ManagedNode):
                 None if rect is None else tuple(rect.ravel()))
 
     def _on_joint_state(self, msg: JointState):
+        """On the input node's thread (activate)."""
         input_checks.joint_state(msg)
-        joints = dict(zip(msg.name, msg.position))
-        if not any(self.kinematics.has_joint(n) for n in joints):
-            raise Rejected('unknown_id', 'joint_states names no joint of the robot')
-        with self._joint_lock:
-            self._joints = self.kinematics.q_from_mapping(joints, default=self._joints)
-            self.joint_buffer.add(stamp_ns(msg.header.stamp), msg.name, msg.position)
+        try:
+            self.poses.add(stamp_ns(msg.header.stamp), msg.name, msg.position)
+        except ValueError as error:
+            raise Rejected('unknown_id', str(error)) from None
         waiting = self._waiting
         if waiting is not None and not self._must_wait(*waiting[1:]):
             self._joints_arrived.trigger()
@@ -291,23 +284,8 @@ class ArtagDetectorNode(ManagedNode):
         if self._waiting is not None and not self._must_wait(*self._waiting[1:]):
             self._detect_waiting()
 
-    def _joints_of(self, frame):
-        joints = self._camera_joints.get(frame)
-        if joints is None:
-            joints = joints_moving_frame(self.kinematics.model, frame)
-            self._camera_joints[frame] = joints
-        return joints
-
     def _must_wait(self, header, frame):
-        """Whether the joint states that move `frame` do not reach the image stamp yet."""
-        if self.joint_lookup != 'interpolate' or self._joints is None or \
-                self.fixed_pose is not None:
-            return False
-        t_ns = stamp_ns(header.stamp)
-        joints = self._joints_of(frame)
-        with self._joint_lock:
-            newest = self.joint_buffer.newest_of(joints)
-        return t_ns != 0 and newest is not None and newest < t_ns
+        return self.poses.must_wait(stamp_ns(header.stamp), frame)
 
     def _take_frame(self, gray, header, frame):
         """Detect now, or keep the frame until the joint states reach its stamp (a frame
@@ -332,42 +310,26 @@ class ArtagDetectorNode(ManagedNode):
             self.health.reject(self.image_topic, rejected.kind, rejected.detail)
 
     def _pose_at(self, frame, header):
-        if self.fixed_pose is not None:
-            return self.fixed_pose
-        return None if self._joints is None else self._camera_pose(frame, header.stamp)
-
-    def _camera_pose(self, frame, stamp):
-        """Pose of URDF `frame` in the base frame at the image's stamp (or at the newest
-        joint state: joint_state_lookup 'latest', an unstamped image or unstamped joint
-        states). Raises Rejected('joint_state_stamp') when the buffer does not reach the
-        stamp."""
-        t_ns = stamp_ns(stamp)
-        interpolate = self.joint_lookup == 'interpolate' and t_ns != 0
-        joints = self._joints_of(frame)
-        with self._joint_lock:
-            q = self._joints
-            try:
-                found = self.joint_buffer.at(t_ns, joints) if interpolate else None
-            except OutsideBuffer as error:
-                outside = str(error)
-                found = None
-        if self.joint_lookup == 'interpolate' and t_ns == 0:
+        """Pose of URDF `frame` in the base frame at the image's stamp (camera_pose_lookup);
+        Rejected('joint_state_stamp') when the buffered joint states do not reach it."""
+        t_ns = stamp_ns(header.stamp)
+        if t_ns == 0 and self.poses.lookup == 'interpolate' and self.fixed_pose is None \
+                and self.poses.has_joint_states:
             self.get_logger().warning(
                 'image without a stamp: camera pose from the newest joint state',
                 throttle_duration_sec=THROTTLE_S)
-        elif interpolate and found is None:
-            raise Rejected('joint_state_stamp', f'image {outside}: do the camera and '
-                           f'{self.resolve_topic_name(names.JOINT_STATES)} share a '
-                           'clock? (joint_state_lookup:=latest takes the newest joint '
-                           'state instead)')
-        elif interpolate:
-            if found.unstamped:
-                self.get_logger().warning(
-                    f'joint_states of {", ".join(found.unstamped)} are unstamped: camera pose '
-                    'from the newest of them, not at the image stamp',
-                    throttle_duration_sec=THROTTLE_S)
-            q = self.kinematics.q_from_mapping(found.positions, default=q)
-        return self.kinematics.frame_pose(q, frame)
+        try:
+            pose, unstamped = self.poses.pose_at(frame, t_ns)
+        except OutsideBuffer as error:
+            raise Rejected('joint_state_stamp', f'image {error}: do the camera and '
+                           f'{self.resolve_topic_name(names.JOINT_STATES)} share a clock? '
+                           '(joint_state_lookup:=latest takes the newest joint state '
+                           'instead)') from None
+        if unstamped:
+            self.get_logger().warning(
+                f'joint_states of {", ".join(unstamped)} are unstamped: camera pose from '
+                'the newest of them, not at the image stamp', throttle_duration_sec=THROTTLE_S)
+        return pose
 
     def _ready(self):
         if self.detector is None:

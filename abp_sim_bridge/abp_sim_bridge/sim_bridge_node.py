@@ -25,8 +25,8 @@ physics and rendering), chosen in `worlds`.
 
 Threads: the executor (main thread) takes commands and services; a simulation thread
 steps the world at `rate` Hz of simulation time, paced to `speedup` x wall time
-(`sim_timing.Pacer`), and
-publishes clock, joint states, odometry and ground truth; a render thread draws camera
+(`sim_timing.Pacer`), and publishes clock, joint states, odometry (keep-last 100:
+`STATE_WRITER`) and ground truth; a render thread draws camera
 frames (scene snapshots taken by the simulation thread at `camera_rate`). The simulation
 never waits for the renderer: a frame that falls due while the previous one is still
 being rendered, or sooner than `camera_max_wall_rate` allows in wall time, is skipped (not
@@ -50,9 +50,7 @@ future are rejected, counted in /diagnostics and logged at most once per few sec
 kind (abp_common.health); the world keeps the last good command.
 
 Topic names are relative (abp_common.names), so the node runs under a namespace; /clock
-stays absolute. The science lives in `worlds`, `rules_world`, `rules_contact`,
-`rules_physics`, `mujoco_world`, `mujoco_scene`, `joint_trajectory_follower`,
-`flat_renderer`, `scenario`, `sim_timing` and `config`.
+stays absolute. The science lives in the package's other modules (`worlds` first).
 """
 
 import queue
@@ -106,11 +104,7 @@ from .worlds import check_rendering, make_world
 
 ODOM_FRAME = 'odom'
 COMMAND_POLL_S = 0.002   # wall s between looks for a late base command (BaseCommandWait)
-# Joint states and odometry: reliable, keep-last 100. A reliable keep-last
-# writer drops a sample a reader has not acknowledged once `depth` newer ones are sent;
-# at a 10x speed-up the states go out ~300 times a wall second, and depth 10 (30 ms)
-# lost joint states to readers of a loaded machine. Small messages:
-# 100 of them cost little, and readers of depth 1-5 (sensor data) see no difference.
+# A keep-last writer drops unacknowledged samples: 10 (~30 ms at 10x) lost some under load.
 STATE_WRITER = qos.reliable(100)
 
 

@@ -18,7 +18,6 @@ import pytest
 rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
-from geometry_msgs.msg import Point, Pose  # noqa: E402
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
@@ -51,7 +50,8 @@ def observation(z, track='', sec=0, position=None, frame=''):
     msg.header.stamp.sec = sec
     msg.header.frame_id = frame
     if position is not None:
-        msg.cube_pose = Pose(position=Point(x=position[0], y=position[1], z=position[2]))
+        p = msg.cube_pose.position
+        p.x, p.y, p.z = position
     return msg
 
 

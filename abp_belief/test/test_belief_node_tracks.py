@@ -7,7 +7,8 @@
 - SceneBelief content: tracks in the order they were made, poses in the observation's
   frame, `visible` for the latest image, actions per object, the model set.
 - Reset of one track, of an unknown track (refused, the tracks named), of all; the bound
-  on the number of tracks.
+  on the number of tracks; a clock that went back (a restarted simulation) starts every
+  object again.
 """
 
 import os
@@ -19,6 +20,7 @@ rclpy = pytest.importorskip('rclpy')
 ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rosgraph_msgs.msg import Clock  # noqa: E402
 
 from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.filter import BeliefFilter  # noqa: E402
@@ -229,5 +231,43 @@ def test_tracks_are_independent_bounded_and_reset_one_by_one(ros_processes, rclp
         assert graph.spin(lambda: graph.scenes[-1].objects == [])
         graph.obs_pub.publish(observation(za[0], 'c', 40))
         scene = graph.scene_where(lambda steps: steps == {'c': 1})
+    finally:
+        graph.close()
+
+
+def test_a_clock_that_went_back_starts_every_objects_belief_again(ros_processes,
+                                                                  rclpy_context, spin, models):
+    """A frame of track A stamped well before the end of A's last action, on a clock that
+    went back (a restarted simulation): the world the tracks described is gone, so every
+    track is forgotten and A's frame starts A again from the prior."""
+    graph = Graph(ros_processes, rclpy_context, spin, '-p', 'use_sim_time:=true')
+    try:
+        clock_pub = graph.node.create_publisher(Clock, '/clock', RELIABLE)
+        assert graph.spin(lambda: clock_pub.get_subscription_count() > 0, 20)
+
+        def publish_clock(sec):
+            clock_pub.publish(Clock(clock=rclpy.time.Time(seconds=sec).to_msg()))
+
+        za, zb = aspect(models, 4, 0), aspect(models, 21, 5)
+        publish_clock(100)
+        graph.obs_pub.publish(observation(za, 'a', 100))
+        graph.obs_pub.publish(observation(zb, 'b', 100))
+        graph.act_pub.publish(action('ORBIT_P45', 'a', 101))
+        graph.scene_where(lambda steps: steps == {'a': 2, 'b': 1})
+
+        def restarted_and_corrected():
+            # The node takes the restarted clock when its /clock message arrives: send the
+            # clock and the new world's frame again until it has.
+            publish_clock(2)
+            graph.obs_pub.publish(observation(za, 'a', 2))
+            return graph.spin(lambda: graph.steps() == {'a': 1}, 1.0)
+
+        assert graph.spin(restarted_and_corrected, 20), \
+            f'no restart after the clock went back (steps {graph.steps()})'
+        alone = BeliefFilter(models)
+        alone.correct(za)
+        [obj_a] = graph.scenes[-1].objects
+        assert np.array_equal(dense(obj_a.belief, models.num_nodes), alone.belief)
+        assert obj_a.actions_taken == 0
     finally:
         graph.close()

@@ -233,6 +233,12 @@ def test_tracks_are_independent_bounded_and_reset_one_by_one(ros_processes, rclp
         scene = graph.scene_where(lambda steps: steps == {'c': 1})
     finally:
         graph.close()
+    # The refused track was logged, saying why and what to do (read once it has ended).
+    ros_processes.stop_all()
+    assert graph.proc.returncode == 0
+    log = ros_processes.transcript(graph.proc)
+    assert "(too_many_tracks): new object track 'c' refused: already 2 tracks (max_tracks " \
+           "2); reset the belief" in log, log
 
 
 def test_a_clock_that_went_back_starts_every_objects_belief_again(ros_processes,

@@ -277,3 +277,12 @@ def test_a_clock_that_went_back_starts_every_objects_belief_again(ros_processes,
         assert obj_a.actions_taken == 0
     finally:
         graph.close()
+
+
+@pytest.mark.parametrize('value', ['0', '101', 'many'])
+def test_a_bad_track_bound_is_refused_clearly(value, main_in_process):
+    from abp_belief.belief_node import main
+    code, stderr = main_in_process(main, '-p', f'max_tracks:={value}')
+    assert code == 2, stderr
+    assert 'configuration error' in stderr and 'max_tracks' in stderr
+    assert 'Traceback' not in stderr

@@ -205,7 +205,7 @@ class Episode:
 
 def read_episode(path) -> Episode:
     """The observations, executed actions and (if recorded) ground truth of a bag."""
-    from rosbags.rosbag2 import Reader
+    from rosbags.highlevel import AnyReader
     path = pathlib.Path(path)
     if not path.exists():
         raise BagLearningError(f'bag {path} does not exist')
@@ -213,11 +213,13 @@ def read_episode(path) -> Episode:
     obs_t, obs_z, acts, truth = [], [], [], []
     truth_object = None
     try:
-        with Reader(path) as reader:
+        # Read with the definitions the bag was recorded with (abp_msgs may have gained
+        # fields since); a bag without them with the current ones.
+        with AnyReader([path], default_typestore=store) as reader:
             wanted = [c for c in reader.connections if _which(c.topic)]
             for connection, _, data in reader.messages(connections=wanted):
                 kind = _which(connection.topic)
-                msg = store.deserialize_cdr(data, connection.msgtype)
+                msg = reader.deserialize(data, connection.msgtype)
                 if kind == 'obs':
                     if not msg.hypotheses:
                         continue

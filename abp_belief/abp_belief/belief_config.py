@@ -13,6 +13,10 @@ BELIEF_SPECS = (
               'rest).', (0.0, 1e-3)),
     ParamSpec('correct_once_per_action', BOOL, True, 'Use only the first observation after '
               'each executed action (true), or every observation message (false).'),
+    ParamSpec('max_tracks', INT, 16, 'Most object tracks (cubes) with a belief of their '
+              'own at once. An observation or action of a further track is refused (logged, '
+              'counted in /diagnostics) until a reset (of all, or of a track) makes room.',
+              (1, 100)),
     ParamSpec('base_frame', STRING, '', 'Frame of the aspect observations (the '
               "aspect matcher's base_frame); observations in another frame are rejected. "
               "Empty: the robot profile's base frame."),

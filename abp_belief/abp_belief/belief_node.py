@@ -3,7 +3,17 @@
 Subscribes:  abp/aspect_observation (abp_msgs/AspectObservation)
              abp/executed_action    (abp_msgs/ExecutedAction)
 Publishes:   abp/belief             (abp_msgs/Belief, latched: late joiners get the latest)
+             abp/beliefs            (abp_msgs/SceneBelief, latched)
 Services:    abp/reset_belief       (abp_msgs/ResetBelief)
+
+One ATG belief per object track (issue 37, docs/MULTI_OBJECT.md): an observation or an
+executed action names its track (`track_id`), and corrects or predicts that object's
+belief only; the empty track id is the single object of a one-cube scene. Each track
+has its own evidence gate and step count (`abp_belief.object_tracks`). /abp/beliefs
+carries every object's belief at each update; /abp/belief the belief of the object
+updated last (with one object: the single-object belief, as before tracks). The pose of
+an object is its latest observation's `cube_pose`, in that observation's frame (the
+node has no tf; an empty frame is written as the base frame).
 
 (Names are relative: /abp/... without a namespace.) Inputs are checked before they reach
 the evidence gate (`abp_common.input_checks`, and the model set's observation check): a
@@ -27,15 +37,23 @@ from abp_common.lifecycle import ManagedNode
 from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all
 from abp_description.robot_profile import load_profile
-from abp_msgs.msg import AspectNodeBelief, AspectObservation, Belief, ExecutedAction
+from abp_msgs.msg import (
+    AspectNodeBelief,
+    AspectObservation,
+    Belief,
+    ExecutedAction,
+    ObjectBelief,
+    SceneBelief,
+)
 from abp_msgs.srv import ResetBelief
 
 from .belief_config import BELIEF_SPECS, BELIEF_STEP_KEY, EVIDENCE_GATE_KEY
 from .cube import ACTIONS, STATES_PER_MODEL
-from .evidence_gate import HELD_OBSERVATIONS, EvidenceGate
-from .filter import BeliefFilter, BeliefUpdateError
+from .evidence_gate import HELD_OBSERVATIONS
+from .filter import BeliefUpdateError, entropy_bits
 from .model_file import ModelFileError, fingerprint
 from .model_set_config import MODEL_SET_PARAMETERS, MODEL_SET_SPECS, model_set_from_values
+from .object_tracks import ObjectTracks, TrackLimitError, UnknownObjectError
 
 # Deep enough that a replay or a busy machine does not overwrite unread inputs.
 INPUTS = qos.reliable(HELD_OBSERVATIONS)
@@ -51,12 +69,13 @@ class BeliefNode(ManagedNode):
     def configure(self):
         values = declare_all(self, MODEL_SET_SPECS + BELIEF_SPECS)
         self.model_set = model_set_from_values(values)
-        self.filter = BeliefFilter(self.model_set)
+        self.tracks = ObjectTracks(self.model_set, values['max_tracks'],
+                                   values['correct_once_per_action'])
         self._prior = None               # the last reset's prior (None: uniform)
         self.model_set_id = fingerprint(self.model_set)
-        self.step = 0
-        self._gate = EvidenceGate(values['correct_once_per_action'])
+        self._messages = {}   # track id -> ((belief version, top_k, floor), its Belief)
         base_frame = values['base_frame'] or load_profile(values['robot_profile']).frames.base
+        self._base_frame = base_frame
         self._frames = ('', base_frame)   # '': the base frame (unset)
         self.health = NodeHealth(self)
         # One stream of time: observations guard the actions' stamps and the reverse.
@@ -70,6 +89,7 @@ class BeliefNode(ManagedNode):
 
     def activate(self):
         self._belief_pub = self.create_publisher(Belief, names.BELIEF, qos.LATCHED)
+        self._scene_pub = self.create_publisher(SceneBelief, names.BELIEFS, qos.LATCHED)
         self.health.subscribe(AspectObservation, names.ASPECT_OBSERVATION,
                               self._on_observation, INPUTS)
         self.health.subscribe(ExecutedAction, names.EXECUTED_ACTION,
@@ -92,12 +112,15 @@ class BeliefNode(ManagedNode):
     def _after_set_parameters(self, params):
         for param in params:
             if param.name == 'correct_once_per_action':
-                self._gate.once_per_action = bool(param.value)
+                self.tracks.once_per_action = bool(param.value)
+            elif param.name == 'max_tracks':
+                self.tracks.max_tracks = int(param.value)   # tracks beyond it are kept
 
     # -- callbacks ----------------------------------------------------------------
     def _on_observation(self, msg: AspectObservation):
         """Raises input_checks.Rejected for a malformed observation (NodeHealth counts it)."""
         input_checks.aspect_observation(msg, self._frames)
+        input_checks.pose('cube pose', msg.cube_pose)
         self._stamps.check(msg.header.stamp, self.health.now_ns())
         if msg.hypotheses:
             z = _observation_of(msg)
@@ -105,41 +128,59 @@ class BeliefNode(ManagedNode):
                 self.model_set.observation.normalize_observation(z)
             except ValueError as error:
                 raise Rejected('out_of_range', str(error)) from None
+        # Only an observation with something to correct makes a new track.
+        track = self._track(msg.track_id, create=bool(msg.hypotheses))
         self._stamps.taken(msg.header.stamp)
+        stamp_ns = input_checks.stamp_ns(msg.header.stamp)
+        if msg.hypotheses and stamp_ns < track.gate.earliest_stamp_ns \
+                and self._reset_if_the_clock_went_back(track):
+            track = self._track(msg.track_id, create=True)   # in the new world
+        self.tracks.observed(track, stamp_ns, seen=bool(msg.hypotheses or msg.features),
+                             pose=_fitted_pose(msg.cube_pose),
+                             frame=msg.header.frame_id or self._base_frame,
+                             stamp=msg.header.stamp)
         if not msg.hypotheses:
             self.get_logger().debug('observation without aspect hypotheses: nothing to correct')
             return
-        stamp = input_checks.stamp_ns(msg.header.stamp)
-        if stamp < self._gate.earliest_stamp_ns:
-            self._reset_if_the_clock_went_back()
         with self.health.timed():
-            if self._gate.offer(stamp, msg):
-                self._correct(msg)
+            if track.gate.offer(stamp_ns, msg):
+                self._correct(track, msg)
 
-    def _reset_if_the_clock_went_back(self):
+    def _reset_if_the_clock_went_back(self, track):
         """As tf2 clears its buffer on a jump back in time: a clock that went back before
-        the last action's end is a new world (a restarted simulation, a bag played again),
-        whose frames would all be dropped as stale until the clock came back there. The
-        belief starts again from the prior (its step goes back: the planner re-observes)."""
+        the end of the last action on the observed track is a new world (a restarted
+        simulation, a bag played again), whose frames would all be dropped as stale until
+        the clock came back there. Every object's belief starts again from the prior, the
+        tracks are forgotten (their steps go back: the planner re-observes). True if so."""
         now_ns = self.get_clock().now().nanoseconds
-        if not self._gate.clock_went_back(now_ns):
-            return
+        if not track.gate.clock_went_back(now_ns):
+            return False
+        on = f' on track {track.track_id!r}' if track.track_id else ''
         self.get_logger().warning(
-            f'the clock went back to {now_ns * 1e-9:.3f} s, before the last action ended '
-            f'({self._gate.earliest_stamp_ns * 1e-9:.3f} s): a restarted simulation or a '
-            f'bag played again; belief reset at step {self.step}')
+            f'the clock went back to {now_ns * 1e-9:.3f} s, before the last action{on} '
+            f'ended ({track.gate.earliest_stamp_ns * 1e-9:.3f} s): a restarted simulation '
+            f'or a bag played again; belief reset at step {track.step}')
         self._restart(self._prior)
+        return True
 
-    def _correct(self, msg: AspectObservation):
+    def _track(self, track_id, create):
+        """The object track named by an input (None: unknown and not `create`); Rejected
+        for an id too long or a new track beyond max_tracks."""
+        try:
+            return self.tracks.track(track_id, create)
+        except TrackLimitError as error:
+            raise Rejected('too_many_tracks', str(error)) from None
+        except ValueError as error:
+            raise Rejected('oversized', str(error)) from None
+
+    def _correct(self, track, msg: AspectObservation):
         z = _observation_of(msg)
         try:
-            self.filter.correct(z)
+            self.tracks.correct(track, z, msg.header.stamp)
         except (ValueError, BeliefUpdateError) as error:
             self.health.reject(names.ASPECT_OBSERVATION, 'no_likelihood',
                                f'observation {z} ignored: {error}')
             return
-        self._gate.corrected()
-        self.step += 1
         self._publish_belief(msg.header.stamp)
 
     def _on_executed_action(self, msg: ExecutedAction):
@@ -150,68 +191,122 @@ class BeliefNode(ManagedNode):
             raise Rejected('unknown_id', f'executed action {shown!r} is unknown (expected one '
                                          f'of {", ".join(ACTIONS)}); belief not predicted')
         self._stamps.check(msg.header.stamp, self.health.now_ns())
+        # An action on a cube not seen yet starts its track: its gate must date the
+        # frames (older ones show the cube before the action).
+        track = self._track(msg.track_id, create=True)
         self._stamps.taken(msg.header.stamp)
-        early = self._gate.action_executed(input_checks.stamp_ns(msg.header.stamp))
+        # The skill did not run to completion (no success): the cube was not acted on as
+        # modelled, so no prediction.
+        early = self.tracks.executed(track, input_checks.stamp_ns(msg.header.stamp),
+                                     msg.action, msg.success, msg.header.stamp)
         if not msg.success:
-            # The skill did not run to completion: the cube was not acted on as modelled.
-            self.get_logger().info(f'{msg.action} failed ({msg.reason}); no prediction step')
+            on = f' on track {track.track_id!r}' if track.track_id else ''
+            self.get_logger().info(f'{msg.action}{on} failed ({msg.reason}); no prediction '
+                                   'step')
         else:
-            self.filter.predict(msg.action)
-            self.step += 1
             self._publish_belief(msg.header.stamp)
         # The first frame of the new state may have overtaken this message.
         for observation in early:
-            self._correct(observation)
-            if not self._gate.awaiting_observation:
+            self._correct(track, observation)
+            if not track.gate.awaiting_observation:
                 break
 
     def _on_reset(self, request, response):
         prior = np.asarray(request.model_prior, dtype=np.float64)
-        step = self.step
+        prior = prior if prior.size else None
+        track_id = request.track_id
+        step = self.tracks.last_updated.step if self.tracks.last_updated else 0
         try:
-            self._restart(prior if prior.size else None)
+            if track_id:
+                step = self.tracks.get(track_id).step
+                self.tracks.reset(track_id, prior, self._reset_stamp())
+                self._publish_belief(self._reset_stamp())
+            else:
+                self._restart(prior)   # a new scene: every track is forgotten
+        except UnknownObjectError as error:
+            response.success = False
+            response.message = f'reset refused: {error.args[0]}'
+            return response
         except ValueError as error:
             response.success = False
             response.message = f'reset refused: {error}'
             return response
-        self.get_logger().info(f'belief reset at step {step} (a new episode)')
+        what = f'belief of track {track_id!r}' if track_id else 'belief'
+        self.get_logger().info(f'{what} reset at step {step} (a new episode)')
         response.success = True
-        response.message = f'belief reset over {self.model_set.num_models} models'
+        response.message = f'{what} reset over {self.model_set.num_models} models'
         return response
 
     def _restart(self, prior):
-        """The belief from `prior` (None: uniform), published; raises ValueError for a
-        prior the filter refuses, leaving the belief as it was."""
-        self.filter = BeliefFilter(self.model_set, prior)
+        """Every track forgotten, new ones from `prior` (None: uniform), published; raises
+        ValueError for a prior the filter refuses, leaving the beliefs as they were."""
+        self.tracks.restart(prior)
         self._prior = prior
-        self.step = 0
-        self._gate.reset()
-        # Stamped with the newest input taken, not with now: the corrections that follow
-        # carry their frames' stamps, which trail the clock by the perception latency, and
-        # a reader that compares stamps within the topic must not see it go back.
-        # Never after the clock, though: a restarted simulation's clock went back.
+        self._messages.clear()   # new tracks count their versions from 0
+        self._publish_belief(self._reset_stamp())
+
+    def _reset_stamp(self):
+        """Stamp of a reset belief: the newest input taken, not now. The corrections that
+        follow carry their frames' stamps, which trail the clock by the perception latency,
+        and a reader that compares stamps within the topic must not see it go back. Never
+        after the clock, though: a restarted simulation's clock went back."""
         newest = self._stamps.newest_not_after(self.get_clock().now().nanoseconds)
-        self._publish_belief(None if newest is None else Time(nanoseconds=newest).to_msg())
+        return None if newest is None else Time(nanoseconds=newest).to_msg()
 
     # -- output -------------------------------------------------------------------
     def _state_values(self):
         """The filter's and the evidence gate's state, for /diagnostics."""
-        return [(BELIEF_STEP_KEY, self.step), (EVIDENCE_GATE_KEY, self._gate.describe()),
+        last = self.tracks.last_updated
+        return [(BELIEF_STEP_KEY, last.step if last else 0),
+                (EVIDENCE_GATE_KEY, self.tracks.describe_gate()),
                 ('observations dropped as older than the last action',
-                 self._gate.dropped_stale)]
+                 self.tracks.dropped_stale),
+                ('object tracks', f'{len(self.tracks)} (at most {self.tracks.max_tracks})')]
 
     def _publish_belief(self, stamp=None):
+        """/abp/belief (the object updated last; the prior before any) and /abp/beliefs."""
+        stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
+        last = self.tracks.last_updated
+        if last is None:
+            self._belief_pub.publish(self._belief_message(self.tracks.prior, 0, stamp))
+        else:
+            self._belief_pub.publish(self._object_message(last))
+        scene = SceneBelief(model_set_id=self.model_set_id)
+        scene.header.stamp = stamp
+        for track in self.tracks.tracks.values():
+            entry = ObjectBelief(track_id=track.track_id, actions_taken=track.actions_taken,
+                                 visible=self.tracks.visible(track),
+                                 belief=self._object_message(track))
+            if track.pose is not None:
+                entry.pose.pose = track.pose
+                entry.pose.header.frame_id = track.pose_frame
+                entry.pose.header.stamp = track.pose_stamp
+            scene.objects.append(entry)
+        self._scene_pub.publish(scene)
+
+    def _object_message(self, track):
+        """The track's Belief message, made again only when its belief changed."""
+        key = (self.tracks.version(track), self._param('top_k'), self._param('node_floor'))
+        cached = self._messages.get(track.track_id)
+        if cached is None or cached[0] != key:
+            stamp = track.stamp if track.stamp is not None else \
+                self.get_clock().now().to_msg()
+            cached = (key, self._belief_message(self.tracks.node_belief(track), track.step,
+                                                stamp))
+            self._messages[track.track_id] = cached
+        return cached[1]
+
+    def _belief_message(self, belief, step, stamp):
         top_k = self._param('top_k')
-        belief = self.filter.belief
-        marginal = self.filter.object_marginal()
+        marginal = belief.reshape(self.model_set.num_models, STATES_PER_MODEL).sum(axis=1)
         order = np.argsort(-marginal, kind='stable')[:top_k]
         msg = Belief()
-        msg.header.stamp = stamp if stamp is not None else self.get_clock().now().to_msg()
-        msg.step = self.step
+        msg.header.stamp = stamp
+        msg.step = step
         msg.object_ids = [self.model_set.names[i] for i in order]
         msg.probabilities = marginal[order].tolist()
         msg.total_models = self.model_set.num_models
-        msg.entropy = self.filter.entropy()
+        msg.entropy = entropy_bits(marginal)
         node_count = min(top_k, belief.size)
         top_nodes = np.argpartition(-belief, node_count - 1)[:node_count]
         top_nodes = top_nodes[np.argsort(-belief[top_nodes], kind='stable')]
@@ -227,7 +322,7 @@ class BeliefNode(ManagedNode):
         msg.node_probabilities = array.array('d', belief[live].tobytes())
         msg.node_floor = floor
         msg.model_set_id = self.model_set_id
-        self._belief_pub.publish(msg)
+        return msg
 
 
 def _observation_of(msg):
@@ -235,6 +330,15 @@ def _observation_of(msg):
     best = msg.hypotheses[0]
     z = (int(best.aspect_type), *(int(s) for s in best.slots))
     return (*z[:3], -1) if z[0] == 2 else z
+
+
+def _fitted_pose(pose):
+    """The observation's cube pose, or None when no fit was possible (all zero with an
+    identity orientation, AspectObservation.msg)."""
+    p, o = pose.position, pose.orientation
+    if (p.x, p.y, p.z, o.x, o.y, o.z, o.w) == (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0):
+        return None
+    return pose
 
 
 def main(args=None):

@@ -87,11 +87,13 @@ class FactoredBelief:
         del self._ids[k], self._versions[k]
         self._row = {oid: i for i, oid in enumerate(self._ids)}
 
-    def reset(self, object_id: Hashable | None = None) -> None:
-        """Back to the prior: one object, or every object (None)."""
+    def reset(self, object_id: Hashable | None = None, prior=None) -> None:
+        """Back to the prior: one object, or every object (None); ``prior``: per-model
+        weights to start from instead of the belief's own prior (validated first)."""
         rows = range(len(self._ids)) if object_id is None else [self._index(object_id)]
+        start = self._prior if prior is None else BeliefFilter(self.model_set, prior).belief
         for k in rows:
-            self.beliefs[k] = self._prior
+            self.beliefs[k] = start
             self._versions[k] += 1
 
     def _index(self, object_id) -> int:

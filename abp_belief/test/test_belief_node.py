@@ -16,7 +16,7 @@ from abp_belief.cube import STATES_PER_MODEL  # noqa: E402
 from abp_belief.filter import BeliefFilter  # noqa: E402
 from abp_belief.model_file import fingerprint  # noqa: E402
 from abp_belief.population import robot_set  # noqa: E402
-from abp_common.qos import LATCHED, RELIABLE  # noqa: E402
+from abp_common.qos import LATCHED, LATCHED_READER, RELIABLE  # noqa: E402
 from abp_msgs.msg import (  # noqa: E402
     AspectHypothesis,
     AspectObservation,
@@ -168,7 +168,9 @@ def test_a_restarted_simulation_starts_the_belief_again_and_its_reset_is_not_in_
     executor.add_node(node)
     try:
         beliefs = []
-        node.create_subscription(Belief, '/abp/belief', beliefs.append, LATCHED)
+        # A deep reader: the restart's step-0 belief and the correction's step 1 are
+        # published back to back, and a depth-1 reader keeps only the second.
+        node.create_subscription(Belief, '/abp/belief', beliefs.append, LATCHED_READER)
         clock_pub = node.create_publisher(Clock, '/clock', RELIABLE)
         obs_pub = node.create_publisher(AspectObservation, '/abp/aspect_observation',
                                         RELIABLE)

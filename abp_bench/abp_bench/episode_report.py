@@ -287,7 +287,8 @@ def load_episodes(path):
     try:
         store = typestore()
         with AnyReader([path], default_typestore=store) as reader:
-            rec = _Bag(reader, store)
+            # The bag's own definitions: abp_msgs may have gained fields since.
+            rec = _Bag(reader, reader.typestore)
             return attach_images(rec, build_episodes(rec, path))
     except BagError:
         raise

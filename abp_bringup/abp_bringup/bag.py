@@ -10,6 +10,12 @@ Topics in a bag are absolute, as rosbag2 records them: a graph under the namespa
 (abp_common.names); `graph_topics(namespace)` resolves them, `graph_name(topic)` maps
 an absolute topic back to the graph's name (for its QoS).
 
+A bag holds the definitions of the types it was recorded with. When abp_msgs has gained
+fields since (issue 37 added track ids), `read_messages` reads a bag with its own
+definitions (the fields it lacks are absent), `outdated_types` names the types whose
+recorded definition is not the current one (the player converts those), while
+`deserialize` with `typestore()` reads only bags of the current definitions.
+
 Each topic carries the QoS profiles its publishers offered (`offered_qos_profiles`, see
 bag_qos), as rosbag2 records them: `ros2 bag play` and abp's bag_player replay a latched
 topic latched. Bags recorded before abp stored QoS have none (`offered_qos`: []).
@@ -29,6 +35,7 @@ GRAPH_TOPICS = {
     names.TAG_DETECTIONS: 'abp_msgs/msg/TagDetectionArray',
     names.ASPECT_OBSERVATION: 'abp_msgs/msg/AspectObservation',
     names.BELIEF: 'abp_msgs/msg/Belief',
+    names.BELIEFS: 'abp_msgs/msg/SceneBelief',   # every object's belief (scene_bag reads it)
     names.EXECUTED_ACTION: 'abp_msgs/msg/ExecutedAction',
     names.PLAN: 'abp_msgs/msg/PlanStep',
     names.GROUND_TRUTH: 'abp_msgs/msg/SimGroundTruth',
@@ -42,7 +49,7 @@ GRAPH_TOPICS = {
 IMAGE_TOPICS = {names.IMAGE: 'sensor_msgs/msg/Image'}
 # The graph's latched topics: only for replaying bags that store no QoS (the recorder
 # takes durability from what the publishers offer).
-LATCHED_TOPICS = {names.BELIEF, names.GROUND_TRUTH}
+LATCHED_TOPICS = {names.BELIEF, names.BELIEFS, names.GROUND_TRUTH}
 SENSOR_TOPICS = {names.IMAGE, names.CAMERA_INFO}
 STORAGE = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 
@@ -194,3 +201,36 @@ def read_bag(path, topics=None):
 def deserialize(store, data, msgtype):
     """A rosbags message object (attributes as in the .msg) from CDR bytes."""
     return store.deserialize_cdr(data, msgtype)
+
+
+def bag_typestore(path):
+    """The message definitions the bag was recorded with (the current ones for a bag that
+    stores none)."""
+    path = pathlib.Path(path)
+    if not path.exists():
+        raise BagError(f'bag {path} does not exist')
+    try:
+        with AnyReader([path], default_typestore=typestore()) as reader:
+            return reader.typestore
+    except Exception as error:
+        raise BagError(f'cannot read bag {path}: {error}') from error
+
+
+def read_messages(path, topics=None):
+    """Yield (topic, msgtype, timestamp_ns, message) in time order, each message read
+    with the definition it was recorded with (a field added since is not there)."""
+    store = bag_typestore(path)
+    for topic, msgtype, timestamp, data in read_bag(path, topics):
+        yield topic, msgtype, timestamp, deserialize(store, data, msgtype)
+
+
+def outdated_types(path):
+    """{msgtype: the bag's typestore} for each type of the bag recorded with another
+    definition than the current one (e.g. abp_msgs before a field was added)."""
+    current, recorded = typestore(), bag_typestore(path)
+    outdated = {}
+    for msgtype in set(bag_topics(path).values()):
+        if msgtype in current.types and msgtype in recorded.types \
+                and recorded.hash_rihs01(msgtype) != current.hash_rihs01(msgtype):
+            outdated[msgtype] = recorded
+    return outdated

@@ -15,7 +15,9 @@ recorded timing; --fast publishes as fast as the subscribers take it. DDS keeps 
 order within a topic only, so with --fast a subscriber that falls behind may take
 messages of two topics out of their recorded order; replay at a rate when that order
 matters. --wait-for waits until each named topic has a subscriber before the first
-message is sent.
+message is sent. A topic recorded with an older definition of its type (abp_msgs before
+a field was added) is replayed converted to the current one, the new fields at their
+defaults (bag_ros.current_message), and the player says so.
 """
 
 import argparse
@@ -30,8 +32,8 @@ from rclpy.utilities import remove_ros_args
 from abp_common import names
 
 from . import bag_qos
-from .bag import BagError, bag_topics, offered_qos, read_bag
-from .bag_ros import graph_qos, message_class, to_rclpy_qos
+from .bag import BagError, bag_topics, deserialize, offered_qos, outdated_types, read_bag
+from .bag_ros import current_message, graph_qos, message_class, to_rclpy_qos
 
 # rosbag2's replay history depth (rmw_qos_profile_default): a late subscriber of a latched
 # topic gets up to this many of its last messages.
@@ -95,6 +97,21 @@ def play(publishers, messages, rate, fast, gap):
     return count
 
 
+def current_messages(messages, outdated):
+    """The bag's (topic, msgtype, stamp, data), with the data of an `outdated` type
+    ({msgtype: the bag's typestore}) made a message of the current definition."""
+    for msgtype in sorted(outdated):
+        print(f'[bag_player] {msgtype} was recorded with another definition: replayed '
+              'converted to the current one (fields the bag lacks at their defaults)',
+              flush=True)
+    classes = {}
+    for topic, msgtype, stamp, data in messages:
+        if msgtype in outdated:
+            cls = classes.setdefault(msgtype, message_class(msgtype))
+            data = current_message(deserialize(outdated[msgtype], data, msgtype), cls)
+        yield topic, msgtype, stamp, data
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else list(argv)
     args = parse_args(remove_ros_args(['bag_player', *argv])[1:])
@@ -127,8 +144,8 @@ def main(argv=None):
                           file=sys.stderr)
                     return 1
                 time.sleep(0.05)
-        count = play(publishers, read_bag(args.bag, list(topics)), args.rate, args.fast,
-                     args.gap)
+        messages = current_messages(read_bag(args.bag, list(topics)), outdated_types(args.bag))
+        count = play(publishers, messages, args.rate, args.fast, args.gap)
         # A reliable writer destroyed before its readers acknowledged would lose the tail.
         unacked = [topic for topic, publisher in publishers.items()
                    if not publisher.wait_for_all_acked(Duration(seconds=args.wait_timeout))]

@@ -38,8 +38,10 @@ DISCOVERY_PERIOD = 0.1
 
 
 class BagRecorder(TolerantNode):
-    def __init__(self):
-        super().__init__('bag_recorder')
+    def __init__(self, **node_options):
+        """`node_options`: rclpy Node options (a context, parameter overrides), for a
+        recorder inside another process."""
+        super().__init__('bag_recorder', **node_options)
         values = declare_all(self, RECORDER_SPECS)
         output = values['output']
         if not output:

@@ -1,8 +1,10 @@
 """The rclpy side of bags, shared by bag_recorder and bag_player: message classes by type
-name, the graph's QoS per topic (for bags that store none), and conversions between
-rclpy's QoSProfile and the `rosbags` profiles a bag stores (bag_qos)."""
+name, the graph's QoS per topic (for bags that store none), conversions between
+rclpy's QoSProfile and the `rosbags` profiles a bag stores (bag_qos), and messages
+recorded with an older definition of their type made current (`current_message`)."""
 
 import importlib
+import re
 
 from rclpy.duration import Duration
 from rclpy.qos import (
@@ -25,6 +27,33 @@ EVENT_DEPTH = 100
 def message_class(msgtype):
     package, kind, name = msgtype.split('/')
     return getattr(importlib.import_module(f'{package}.{kind}'), name)
+
+
+def current_message(recorded, cls):
+    """A `cls` (rclpy) message from a rosbags message recorded with another definition of
+    its type: the fields both definitions have are copied, nested messages field by field;
+    a field the recording lacks keeps its default (an empty track id: the single object)."""
+    msg = cls()
+    for name, kind in cls.get_fields_and_field_types().items():
+        if not hasattr(recorded, name):
+            continue
+        value = getattr(recorded, name)
+        if hasattr(value, '__msgtype__'):
+            value = current_message(value, type(getattr(msg, name)))
+        elif isinstance(value, (list, tuple)) and value and hasattr(value[0], '__msgtype__'):
+            element = message_class(_element_type(kind))
+            value = [current_message(v, element) for v in value]
+        elif hasattr(value, 'tolist'):   # rosbags reads arrays of numbers as NumPy arrays
+            value = value.tolist()
+        setattr(msg, name, value)
+    return msg
+
+
+def _element_type(kind):
+    """'abp_msgs/msg/AspectHypothesis' from an rclpy field type such as
+    'sequence<abp_msgs/AspectHypothesis>' or 'abp_msgs/AspectHypothesis[3]'."""
+    package, name = re.sub(r'^sequence<|, ?\d+>$|>$|\[\d*\]$', '', kind).split('/')
+    return f'{package}/msg/{name}'
 
 
 def graph_qos(topic):

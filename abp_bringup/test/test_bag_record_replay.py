@@ -187,7 +187,7 @@ def test_recorder_under_a_namespace_records_its_absolute_topics(ros_processes, r
     node.create_publisher(Belief, '/abp/belief', qos.LATCHED).publish(Belief(step=5))
     recorder = ros_processes.start([executable('abp_bringup', 'bag_recorder'), '--ros-args',
                                     '-r', '__ns:=/robot1', '-p', f'output:={bag}'])
-    ros_processes.wait_for_lines(recorder, ['recording 11 topics',
+    ros_processes.wait_for_lines(recorder, ['recording 12 topics',
                                             'first message on /robot1/abp/belief'], 30)
     assert spin(executor, lambda: node.count_subscribers('/robot1/abp/belief') > 0, 30)
     assert node.count_subscribers('/abp/belief') == 0

@@ -21,7 +21,7 @@ ament_index = pytest.importorskip('ament_index_python.packages')
 
 from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
-from abp_bringup.bag import deserialize, read_bag, typestore  # noqa: E402
+from abp_bringup.bag import read_messages  # noqa: E402
 from abp_common import names, qos  # noqa: E402
 from abp_msgs.msg import Belief  # noqa: E402
 
@@ -34,16 +34,16 @@ def executable(package, name):
 
 
 def recorded(bag):
-    """The episode's last belief, its ground truth and its executed actions."""
-    store = typestore()
+    """The episode's last belief, its ground truth and its executed actions (read with
+    the definitions they were recorded with: abp_msgs has gained fields since)."""
     beliefs, truth, actions = [], None, []
-    for topic, msgtype, _, data in read_bag(bag):
+    for topic, _, _, msg in read_messages(bag):
         if topic == '/abp/belief':
-            beliefs.append(deserialize(store, data, msgtype))
+            beliefs.append(msg)
         elif topic == '/abp/sim/ground_truth':
-            truth = deserialize(store, data, msgtype)
+            truth = msg
         elif topic == '/abp/executed_action':
-            actions.append(deserialize(store, data, msgtype))
+            actions.append(msg)
     return beliefs[-1], truth, actions
 
 

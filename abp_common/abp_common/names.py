@@ -21,6 +21,7 @@ TRAJECTORY_TOPIC = '{controller}/joint_trajectory'
 TAG_DETECTIONS = 'abp/tag_detections'
 ASPECT_OBSERVATION = 'abp/aspect_observation'
 BELIEF = 'abp/belief'
+BELIEFS = 'abp/beliefs'  # every object's belief (abp_msgs/SceneBelief)
 EXECUTED_ACTION = 'abp/executed_action'
 PLAN = 'abp/plan'
 MARKERS = 'abp/markers'

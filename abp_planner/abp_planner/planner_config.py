@@ -39,6 +39,10 @@ PLANNER_SPECS = (
               'which the planner stops choosing it for the rest of the episode (it comes back '
               'only when nothing else is feasible). A failed skill is always left out of the '
               'next decision.', (1, 1000)),
+    ParamSpec('scene_gather_s', DOUBLE, 1.0, 'Goals with a task (several cubes): after the '
+              'first observation of an episode, seconds to wait for each further cube in '
+              'view to be observed before the first decision (cubes seen later join at the '
+              'next decision).', (0.0, 60.0)),
     ParamSpec('use_feasibility', BOOL, True, 'Ask abp/skills/check_feasibility before each '
               'decision; infeasible actions fall through to the next best.'),
     ParamSpec('planner_seed', INT, 0, 'Seed of the random planner.', (0, 2**31 - 1)),

@@ -2,7 +2,9 @@
 
 Action server:  abp/recognize (abp_msgs/Recognize) runs the recognition loop.
 Subscribes:     abp/belief (abp_msgs/Belief, latched; the sparse node belief is what the
-                planner plans on), abp/aspect_observation (cube pose for markers)
+                planner plans on), abp/beliefs (abp_msgs/SceneBelief, latched; one belief
+                per object track, for the goals with a task), abp/aspect_observation
+                (cube pose for markers)
 Publishes:      abp/plan (abp_msgs/PlanStep), abp/executed_action (abp_msgs/ExecutedAction),
                 abp/markers (visualization_msgs/MarkerArray)
 Uses:           abp/skills/{orbit,push,lift,flip} actions, abp/skills/check_feasibility,
@@ -10,7 +12,9 @@ Uses:           abp/skills/{orbit,push,lift,flip} actions, abp/skills/check_feas
 
 (Names are relative: /abp/... without a namespace.) The decision is
 `abp_planner.planner`, the episode (stop, re-plan, retry, wait for evidence)
-`abp_planner.episode.EpisodeRunner`; this module moves messages and implements the
+`abp_planner.episode.EpisodeRunner`, or for a goal with a task (identify_all, find,
+identify: docs/MULTI_OBJECT.md) `abp_planner.scene_episode.SceneEpisodeRunner` over
+(object, action); this module moves messages and implements the
 runner's `EpisodePorts` for the goal being executed; `skill_clients` sends the skill
 goals. A belief that is not over this
 model set or is malformed (`input_checks.belief`), and malformed observations, are rejected,
@@ -41,7 +45,14 @@ from abp_common.node_runner import run_node
 from abp_common.parameters import declare_all, read_all
 from abp_description.robot_profile import load_profile
 from abp_msgs.action import Recognize
-from abp_msgs.msg import AspectObservation, Belief, ExecutedAction, PlanStep
+from abp_msgs.msg import (
+    AspectObservation,
+    Belief,
+    ExecutedAction,
+    ObjectResult,
+    PlanStep,
+    SceneBelief,
+)
 from abp_msgs.srv import CheckFeasibility, ResetBelief
 
 from .belief_inbox import BeliefInbox
@@ -57,13 +68,22 @@ from .episode import (
     expected_gain,
 )
 from .markers import belief_markers
+from .object_planner import ObjectActionPlanner
 from .planner import PLANNER_NAMES, make_planner
 from .planner_config import PLANNER_SPECS
+from .scene_episode import SceneEpisodeRunner, task_of
+from .scene_inbox import SceneInbox
 from .skill_clients import SkillClients, call_with_retry
 from .stopping import STOP_RULES, StoppingRule
+from .tasks import TaskMonitor
 
 # Candidates a Recognize result lists.
 TOP_CANDIDATES = 5
+# The Recognize goal's task values ('' is the one-object episode of before tasks).
+TASKS = ('', Recognize.Goal.TASK_IDENTIFY_ALL, Recognize.Goal.TASK_FIND,
+         Recognize.Goal.TASK_IDENTIFY)
+
+
 class PlannerNode(ManagedNode):
     """Configure loads the model set; activate opens the topics, the clients and the
     Recognize server (abp_common.lifecycle)."""
@@ -86,6 +106,7 @@ class PlannerNode(ManagedNode):
         # that had come (the "no belief took one" stalls of the fresh-clone runs).
         self._belief_group = MutuallyExclusiveCallbackGroup()
         self._beliefs = BeliefInbox()
+        self._scenes = SceneInbox()
         self._cube_pose = None
         self._observations = ObservationTally()
         self._belief_health = None  # (values, monotonic time) of the belief node's status
@@ -116,6 +137,9 @@ class PlannerNode(ManagedNode):
         # A deep reader: a burst on the topic must not push out the belief not yet taken.
         self._belief_sub = self.health.subscribe(
             Belief, names.BELIEF, self._on_belief, qos.LATCHED_READER,
+            callback_group=self._belief_group)
+        self._scene_sub = self.health.subscribe(
+            SceneBelief, names.BELIEFS, self._on_scene, qos.LATCHED_READER,
             callback_group=self._belief_group)
         self._skills = SkillClients(self)
         self._feasibility = self.create_client(CheckFeasibility, names.CHECK_FEASIBILITY,
@@ -164,6 +188,16 @@ class PlannerNode(ManagedNode):
         if self._beliefs.offer(msg):   # else latched or in flight from before the reset
             self._publish_markers()
 
+    def _on_scene(self, msg: SceneBelief):
+        """Raises input_checks.Rejected for a scene the planner cannot plan on."""
+        if msg.model_set_id and msg.model_set_id != self.model_set_id:
+            raise Rejected('model_set', 'scene belief is over a different model set than '
+                                        "the planner's: give both nodes the same model-set "
+                                        'parameters')
+        for entry in msg.objects:
+            input_checks.belief(entry.belief, self.model_set.num_nodes)
+        self._scenes.offer(msg)
+
     def _on_observation(self, msg: AspectObservation):
         input_checks.aspect_observation(msg)
         self._observation_stamps.check(msg.header.stamp, self.health.now_ns())
@@ -195,6 +229,10 @@ class PlannerNode(ManagedNode):
             self.get_logger().warning('Recognize goal rejected: target_error must be in '
                                       '[0, 0.5) and posterior_threshold in [0, 1)')
             return GoalResponse.REJECT
+        if goal.task not in TASKS:
+            self.get_logger().warning(f'Recognize goal rejected: unknown task {goal.task[:40]!r} '
+                                      f'(expected one of {", ".join(map(repr, TASKS))})')
+            return GoalResponse.REJECT
         if self._busy.locked():
             self.get_logger().warning('Recognize goal rejected: a recognition is running')
             return GoalResponse.REJECT
@@ -210,6 +248,8 @@ class PlannerNode(ManagedNode):
             planner = make_planner(self._mode, self.model_set, alpha=params['alpha'],
                                    seed=params['planner_seed'],
                                    planning_budget_s=params['planning_budget_s'] or None)
+            if goal.task:
+                return self._execute_task(goal_handle, goal, planner, params)
             stopping = RuleStop(self._stopping_rule(goal, params), self.model_set.num_nodes)
             runner = EpisodeRunner(planner, self, self.model_set.num_nodes, stopping,
                                    params['observation_timeout'], self.get_logger(),
@@ -218,6 +258,65 @@ class PlannerNode(ManagedNode):
             started = self.get_clock().now()
             episode = runner.run()
             return self._finish(goal_handle, episode, started)
+
+    def _execute_task(self, goal_handle, goal, planner, params):
+        """A goal with a task: the multi-object episode (scene_episode). A goal the task
+        cannot run (unknown model, missing field, a planner without gains) is aborted at
+        once with the reason."""
+        started = self.get_clock().now()
+        try:
+            task = task_of(goal.task, goal.target_model, goal.track_id, self.model_set.names)
+            object_planner = ObjectActionPlanner(planner)
+        except ValueError as error:
+            self.get_logger().warning(f'Recognize goal aborted: {error}')
+            goal_handle.abort()
+            return Recognize.Result(success=False, reason=str(error),
+                                    elapsed=(self.get_clock().now() - started).to_msg())
+        monitor = TaskMonitor(task, self._stopping_rule(goal, params))
+        runner = SceneEpisodeRunner(object_planner, _ScenePorts(self), self.model_set, monitor,
+                                    params['observation_timeout'], self.get_logger(),
+                                    gather_s=params['scene_gather_s'],
+                                    node_return_timeout_s=params['node_return_timeout'],
+                                    skill_failure_limit=params['skill_failure_limit'])
+        return self._finish_task(goal_handle, runner.run(), started)
+
+    def _finish_task(self, goal_handle, episode, started):
+        result = Recognize.Result(actions_taken=episode.actions_taken, success=episode.success,
+                                  reason=episode.reason, found_track_id=episode.found_object)
+        names_ = self.model_set.names
+        result.objects = [ObjectResult(track_id=str(o.object_id), object_id=names_[o.model],
+                                       posterior=float(o.posterior), actions_taken=o.actions,
+                                       decided=bool(o.identified), reason=o.reason)
+                          for o in episode.objects]
+        # The one-object fields name the object the task was about (identify's track,
+        # find's found track, or the only object of the scene).
+        view = episode.view
+        focus = episode.found_object or self._runner_track(episode)
+        if view is not None and focus in view:
+            belief = view.message(focus)
+            result.object_id = belief.object_ids[0] if belief.object_ids else ''
+            result.posterior = float(belief.probabilities[0]) if belief.probabilities else 0.0
+            result.top_object_ids = list(belief.object_ids[:TOP_CANDIDATES])
+            result.top_posteriors = [float(p) for p in belief.probabilities[:TOP_CANDIDATES]]
+        result.elapsed = (self.get_clock().now() - started).to_msg()
+        if episode.outcome == CANCELED:
+            goal_handle.canceled()
+        elif episode.outcome == ABORTED or not episode.success:
+            goal_handle.abort()
+        else:
+            goal_handle.succeed()
+        named = ', '.join(f'{o.track_id}: {o.object_id} ({o.posterior:.3f})'
+                          for o in result.objects) or '-'
+        self.get_logger().info(f'task {self._goal_handle.request.task} finished after '
+                               f'{episode.actions_taken} actions ({named}): {episode.reason}')
+        return result
+
+    def _runner_track(self, episode):
+        request = self._goal_handle.request
+        if request.task == Recognize.Goal.TASK_IDENTIFY:
+            return request.track_id
+        view = episode.view
+        return view.object_ids[0] if view is not None and len(view) == 1 else ''
 
     def _stopping_rule(self, goal, params):
         """The goal's stopping rule; a field left at its zero value takes the parameter."""
@@ -255,7 +354,8 @@ class PlannerNode(ManagedNode):
         return result
 
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
-    def reset_belief(self):
+    def reset_belief(self, track_id=''):
+        """Reset every track's belief (`track_id` '', a new scene) or one track's."""
         self._known_belief_publishers = _of_the_belief_node(self._belief_publishers())
         if not self._skills_at_start:
             self._skills_at_start = self._skills.ready()
@@ -267,8 +367,10 @@ class PlannerNode(ManagedNode):
         # The belief node's messages arrive in order, so the first belief at step 0 from
         # now on is the reset's own; the evidence waits skip everything before it.
         self._beliefs.reset_asked()
-        response = call_with_retry(self._reset, ResetBelief.Request(), 10.0)
+        self._scenes.reset_asked(track_id)
+        response = call_with_retry(self._reset, ResetBelief.Request(track_id=track_id), 10.0)
         if response is None or not response.success:
+            self._scenes.reset_refused()
             raise RecognitionAborted('belief reset failed: '
                                      f'{response.message if response else "no answer"}')
 
@@ -341,7 +443,8 @@ class PlannerNode(ManagedNode):
         return {a: (ok, reason) for a, ok, reason in
                 zip(response.actions, response.feasible, response.reasons)}
 
-    def run_skill(self, action):
+    def run_skill(self, action, track_id=''):
+        # The skills act on the cube in front of the robot: their goals carry no track.
         return self._skills.run(action, self._param('skill_timeout'), self.cancel_requested)
 
     def publish_plan(self, decision, feasible):
@@ -356,14 +459,15 @@ class PlannerNode(ManagedNode):
         msg.candidate_feasible = [feasible.get(a, (True, ''))[0] for a in ACTIONS]
         self._plan_pub.publish(msg)
 
-    def publish_feedback(self, belief, decision, actions_taken):
+    def publish_feedback(self, belief, decision, actions_taken, track_id=''):
         self._goal_handle.publish_feedback(Recognize.Feedback(
             belief=belief, chosen_action=decision.action,
-            expected_information_gain=expected_gain(decision), actions_taken=actions_taken))
+            expected_information_gain=expected_gain(decision), actions_taken=actions_taken,
+            chosen_track_id=track_id))
 
-    def publish_executed(self, action, sequence, success, reason, duration):
+    def publish_executed(self, action, sequence, success, reason, duration, track_id=''):
         msg = ExecutedAction(action=action, sequence=sequence, success=success, reason=reason,
-                             duration=duration)
+                             duration=duration, track_id=track_id)
         msg.header.stamp = self.get_clock().now().to_msg()
         self._executed_pub.publish(msg)
 
@@ -372,6 +476,29 @@ class PlannerNode(ManagedNode):
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg(),
                                                  base_frame=self._base_frame))
+
+
+class _ScenePorts:
+    """The node's EpisodePorts with the scene belief (/abp/beliefs) where the one-object
+    episode reads /abp/belief (scene_episode's ports)."""
+
+    def __init__(self, node):
+        self._node = node
+
+    def __getattr__(self, name):
+        return getattr(self._node, name)
+
+    def wait_for_belief(self, predicate, timeout_s):
+        node = self._node
+        return node._scenes.wait(predicate, timeout_s, lambda: rclpy.ok(context=node.context))
+
+    def latest_belief(self):
+        return self._node._scenes.latest()
+
+    def belief_restarted(self):
+        # /abp/belief's step goes back whenever another object is updated: not a restart.
+        self._node._beliefs.take_restart()
+        return self._node._scenes.take_restart()
 
 
 def _of_the_belief_node(publishers):

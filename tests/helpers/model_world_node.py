@@ -9,9 +9,18 @@ observation model of the current state. It lets the planner and belief nodes be
 tested end to end before (and independently of) the rendered simulation.
 
 Arguments: model_set seed true_model_index [fail_action] [infeasible_action]
+
+Several objects (issue 37): true_model_index as a comma-separated list of model indices
+(e.g. 0,11,20) places one cube of each, tracks cube1, cube2, ... (each with its own
+seeded noise stream), all in view: every tick publishes one observation per cube with its
+track_id and cube_pose. A skill's outcome is applied to the cube the planner says it acted
+on, the track_id of its abp/executed_action; until that message arrives after a skill the
+world publishes nothing (the robot is moving: no frame may show the cube before the
+action under a stamp after it).
 """
 
 import sys
+import threading
 import time
 
 import numpy as np
@@ -25,9 +34,11 @@ from abp_belief import population
 from abp_belief.cube import ACTIONS, ORBIT_STEPS, STATES_PER_MODEL, action_index
 from abp_common import names, qos
 from abp_msgs.action import Flip, Lift, Orbit, Push
-from abp_msgs.msg import AspectHypothesis, AspectObservation
+from abp_msgs.msg import AspectHypothesis, AspectObservation, ExecutedAction
 from abp_msgs.srv import CheckFeasibility
 
+# A skill whose executed action never comes: resume observing after this long.
+EXECUTED_WAIT_S = 30.0
 # Orbit goal angle (deg) -> the ATG action it is.
 ORBIT_ACTIONS = {45.0 * steps: action for action, steps in ORBIT_STEPS.items()}
 SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
@@ -55,14 +66,25 @@ class ModelWorld(Node):
 
     def publish_observation(self):
         z = self.models.observation.sample(self.models.node_aspect[self.node], self.rng)
-        msg = AspectObservation()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        self.pub.publish(self.observation(z, self.get_clock().now().to_msg()))
+
+    @staticmethod
+    def observation(z, stamp, track_id='', y=0.0):
+        msg = AspectObservation(track_id=track_id)
+        msg.header.stamp = stamp
         msg.header.frame_id = 'base_link'
         msg.hypotheses = [AspectHypothesis(aspect_type=z[0], slots=list(z[1:]), support=1.0,
                                            score=1.0)]
         msg.hypotheses[0].object_pose.pose.position.x = 0.4
+        msg.hypotheses[0].object_pose.pose.position.y = y
         msg.hypotheses[0].object_pose.pose.orientation.w = 1.0
-        self.pub.publish(msg)
+        if track_id:
+            msg.cube_pose = msg.hypotheses[0].object_pose.pose
+        return msg
+
+    def outcome_deferred(self, action):
+        """False: the one cube's outcome is sampled at once, in the skill."""
+        return False
 
     def feasibility(self, request, response):
         actions = list(request.actions) or list(ACTIONS)
@@ -88,8 +110,9 @@ class ModelWorld(Node):
             self.executed.append((action, False))
             print(f'EXECUTED {action} failed', flush=True)
             return result
-        nodes, probs = self.models.successors(action_index(action), np.array([self.node]))
-        self.node = int(self.rng.choice(nodes[0], p=probs[0]))
+        if not self.outcome_deferred(action):
+            nodes, probs = self.models.successors(action_index(action), np.array([self.node]))
+            self.node = int(self.rng.choice(nodes[0], p=probs[0]))
         self.executed.append((action, True))
         print(f'EXECUTED {action} ok', flush=True)
         handle.succeed()
@@ -98,17 +121,75 @@ class ModelWorld(Node):
         return result
 
 
+class SceneWorld(ModelWorld):
+    """K cubes, one model each (module doc); the skill outcome goes to the cube named by
+    the planner's executed action."""
+
+    def __init__(self, model_set, true_models, seed, fail_action='', infeasible_action=''):
+        super().__init__(model_set, true_models[0], fail_action, infeasible_action)
+        self.tracks = [f'cube{k + 1}' for k in range(len(true_models))]
+        self.rngs = [np.random.default_rng([seed, k]) for k in range(len(true_models))]
+        self.nodes = {track: model * STATES_PER_MODEL + int(rng.integers(STATES_PER_MODEL))
+                      for track, model, rng in zip(self.tracks, true_models, self.rngs)}
+        self.lock = threading.Lock()
+        self.pending = None   # (action, monotonic time) of a skill whose cube is not known yet
+        self.create_subscription(ExecutedAction, names.EXECUTED_ACTION, self.on_executed,
+                                 qos.RELIABLE)
+
+    def publish_observation(self):
+        with self.lock:
+            if self.pending is not None and \
+                    time.monotonic() - self.pending[1] < EXECUTED_WAIT_S:
+                return
+            self.pending = None
+            stamp = self.get_clock().now().to_msg()
+            frames = [self.observation(
+                self.models.observation.sample(self.models.node_aspect[self.nodes[track]],
+                                               rng), stamp, track, y=0.3 * k)
+                for k, (track, rng) in enumerate(zip(self.tracks, self.rngs))]
+        for msg in frames:
+            self.pub.publish(msg)
+
+    def outcome_deferred(self, action):
+        """The skill ran: hold the observations until the planner says on which cube."""
+        with self.lock:
+            self.pending = (action, time.monotonic())
+        return True
+
+    def on_executed(self, msg):
+        with self.lock:
+            if self.pending is None or self.pending[0] != msg.action:
+                return
+            self.pending = None
+            if not msg.success:
+                return
+            if msg.track_id not in self.nodes:
+                print(f'EXECUTED {msg.action} on unknown track {msg.track_id!r}', flush=True)
+                return
+            k = self.tracks.index(msg.track_id)
+            nodes, probs = self.models.successors(action_index(msg.action),
+                                                  np.array([self.nodes[msg.track_id]]))
+            self.nodes[msg.track_id] = int(self.rngs[k].choice(nodes[0], p=probs[0]))
+        print(f'EXECUTED {msg.action} on {msg.track_id}', flush=True)
+
+
 def main():
-    kind, seed, true_model = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    kind, seed, true_models = sys.argv[1], int(sys.argv[2]), sys.argv[3]
     fail_action = sys.argv[4] if len(sys.argv) > 4 else ''
     infeasible = sys.argv[5] if len(sys.argv) > 5 else ''
     models = population.robot_set(seed=seed) if kind == 'robot' else \
         population.random_visual_subset(30, seed=seed)
     rclpy.init()
-    node = ModelWorld(models, true_model, fail_action, infeasible)
+    if ',' in true_models:
+        indices = [int(m) for m in true_models.split(',')]
+        node = SceneWorld(models, indices, seed, fail_action, infeasible)
+        truth = ' '.join(f'{t}={models.names[m]}' for t, m in zip(node.tracks, indices))
+    else:
+        node = ModelWorld(models, int(true_models), fail_action, infeasible)
+        truth = models.names[int(true_models)]
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
-    print(f'READY true={models.names[true_model]}', flush=True)
+    print(f'READY true={truth}', flush=True)
     try:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -8,7 +8,9 @@ protocol), and publishes abp/aspect_observation at 5 Hz with observations sample
 observation model of the current state. It lets the planner and belief nodes be
 tested end to end before (and independently of) the rendered simulation.
 
-Arguments: model_set seed true_model_index [fail_action] [infeasible_action]
+Arguments: model_set seed true_model_index [fail_action] [infeasible_action] [noise_seed]
+(noise_seed: seeds the outcome and observation noise; default: the fixed streams of the
+tests.)
 
 Several objects (issue 37): true_model_index as a comma-separated list of model indices
 (e.g. 0,11,20) places one cube of each, tracks cube1, cube2, ... (each with its own
@@ -45,10 +47,11 @@ SKILL_TYPES = {'orbit': Orbit, 'push': Push, 'lift': Lift, 'flip': Flip}
 
 
 class ModelWorld(Node):
-    def __init__(self, model_set, true_model, fail_action='', infeasible_action=''):
+    def __init__(self, model_set, true_model, fail_action='', infeasible_action='',
+                 noise_seed=None):
         super().__init__('model_world')
         self.models = model_set
-        self.rng = np.random.default_rng(1234)
+        self.rng = np.random.default_rng(1234 if noise_seed is None else [1234, noise_seed])
         self.node = true_model * STATES_PER_MODEL + int(self.rng.integers(STATES_PER_MODEL))
         self.fail_action = fail_action
         self.infeasible_action = infeasible_action
@@ -125,10 +128,12 @@ class SceneWorld(ModelWorld):
     """K cubes, one model each (module doc); the skill outcome goes to the cube named by
     the planner's executed action."""
 
-    def __init__(self, model_set, true_models, seed, fail_action='', infeasible_action=''):
+    def __init__(self, model_set, true_models, seed, fail_action='', infeasible_action='',
+                 noise_seed=None):
         super().__init__(model_set, true_models[0], fail_action, infeasible_action)
         self.tracks = [f'cube{k + 1}' for k in range(len(true_models))]
-        self.rngs = [np.random.default_rng([seed, k]) for k in range(len(true_models))]
+        streams = [seed] if noise_seed is None else [seed, noise_seed]
+        self.rngs = [np.random.default_rng([*streams, k]) for k in range(len(true_models))]
         self.nodes = {track: model * STATES_PER_MODEL + int(rng.integers(STATES_PER_MODEL))
                       for track, model, rng in zip(self.tracks, true_models, self.rngs)}
         self.lock = threading.Lock()
@@ -177,15 +182,16 @@ def main():
     kind, seed, true_models = sys.argv[1], int(sys.argv[2]), sys.argv[3]
     fail_action = sys.argv[4] if len(sys.argv) > 4 else ''
     infeasible = sys.argv[5] if len(sys.argv) > 5 else ''
+    noise_seed = int(sys.argv[6]) if len(sys.argv) > 6 else None
     models = population.robot_set(seed=seed) if kind == 'robot' else \
         population.random_visual_subset(30, seed=seed)
     rclpy.init()
     if ',' in true_models:
         indices = [int(m) for m in true_models.split(',')]
-        node = SceneWorld(models, indices, seed, fail_action, infeasible)
+        node = SceneWorld(models, indices, seed, fail_action, infeasible, noise_seed)
         truth = ' '.join(f'{t}={models.names[m]}' for t, m in zip(node.tracks, indices))
     else:
-        node = ModelWorld(models, int(true_models), fail_action, infeasible)
+        node = ModelWorld(models, int(true_models), fail_action, infeasible, noise_seed)
         truth = models.names[int(true_models)]
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)

@@ -85,7 +85,8 @@ def test_identify_all_names_every_cube_of_a_three_cube_scene(
     assert all(e.track_id in TRACKS for e in executed)
     assert {t: named[t].actions_taken for t in TRACKS if named[t].actions_taken} == \
         dict(per_track(executed))
-    assert feedback and all(f.chosen_track_id in TRACKS for f in feedback)
+    # One feedback per decision, before its action (another topic: it may come later).
+    assert spin(executor, lambda: len(feedback) >= len(executed), 10)
     assert [f.chosen_track_id for f in feedback] == [e.track_id for e in executed]
 
 

@@ -122,8 +122,9 @@ def score(task, result, truth, names, target):
     """{actions, success, correct, wrong} of one task's result against `truth`
     ({track: model index})."""
     named = {o.track_id: o for o in result.objects}
+    # A decided track the world does not have (an association gone wrong) counts as wrong.
     wrong = sum(1 for track, o in named.items() if o.decided and task == 'identify_all'
-                and o.object_id != names[truth.get(track, -1)])
+                and (track not in truth or o.object_id != names[truth[track]]))
     if task == 'identify_all':
         correct = all(track in named and named[track].object_id == names[m]
                       for track, m in truth.items())

@@ -444,6 +444,13 @@ def _scene(v, hidden, cube_size):
     return hiddens, cubes
 
 
+def scene_summary(config):
+    """The scene's cubes for the log: today's text with one cube."""
+    text = ', '.join(f'{h.object_id} (model_index {h.model_index})' for h in config.hiddens)
+    return f'hidden cube {text}' if len(config.hiddens) == 1 else \
+        f'{len(config.hiddens)} hidden cubes {text}'
+
+
 def refusal(values, changes):
     """Why a parameter change is refused ('' when it is accepted): `values` are the current
     {name: value}, `changes` the new ones (names that are not the sim bridge's, such as
@@ -463,4 +470,4 @@ def refusal(values, changes):
 
 __all__ = ['LIVE_PARAMETERS', 'MODEL_SET_SPECS', 'PARAMETERS', 'PARAMETER_NAMES', 'WORLDS',
            'CameraConfig', 'MujocoConfig', 'SimBridgeConfig', 'build', 'check_speedup', 'defaults',
-           'description_note', 'refusal']
+           'description_note', 'refusal', 'scene_summary']

@@ -15,9 +15,8 @@ Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /camera/image_raw (sensor_msgs/Image; JPEG on .../compressed with
              publish_compressed), /camera/camera_info (reliable: a subscriber chooses
              sensor data QoS or reliable; abp_common.qos)
-             /abp/sim/ground_truth (abp_msgs/SimGroundTruth, the first cube) and
-             /abp/sim/scene_truth (abp_msgs/SimSceneTruth, every cube), transient local,
-             published together; TESTS AND BENCHMARKS ONLY
+             /abp/sim/ground_truth (abp_msgs/SimGroundTruth: the first cube), /abp/sim/
+             scene_truth (SimSceneTruth: every cube), transient local; TESTS, BENCHMARKS
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
              initial joints) from the current parameters; simulation time goes on.
 
@@ -166,7 +165,7 @@ class SimBridgeNode(ManagedNode):
         self._odom.child_frame_id = profile.frames.base
         self._clock_msg = Clock()
         self.get_logger().info(
-            f'sim_bridge: {self.config.world} world, {_cubes_text(self.config)}, '
+            f'sim_bridge: {self.config.world} world, {cfg.scene_summary(self.config)}, '
             f'{self.config.settings.rate:g} Hz, camera {self.config.camera.rate:g} Hz, '
             f'speedup {self.config.speedup:g}, publish_clock {self.config.publish_clock}')
         if not self.config.publish_clock:
@@ -223,8 +222,7 @@ class SimBridgeNode(ManagedNode):
         """(Re)build the world from `config`. Call with the lock held (or before threads)."""
         self.sim, self.camera = make_world(config, self.kin, self.intrinsics, start_time_ns)
         cam = config.camera
-        self.hidden = config.hidden
-        self.hiddens = config.hiddens
+        self.hidden, self.hiddens = config.hidden, config.hiddens
         self._tag_miss_rng = np.random.default_rng(config.failure_seed + 1)
         self.config = config
         tick_ns = self.sim.period_ns
@@ -251,7 +249,7 @@ class SimBridgeNode(ManagedNode):
         self._pacer.set_speedup(config.speedup)
         response.success = True
         response.message = (f'world reset at t={self.sim.time:.3f} s: '
-                            f'{_cubes_text(config)}')
+                            f'{cfg.scene_summary(config)}')
         self.get_logger().info(response.message)
         return response
 
@@ -438,13 +436,6 @@ class SimBridgeNode(ManagedNode):
         for thread in self._threads:
             thread.join(timeout=2.0)
         return self._failed
-
-
-def _cubes_text(config):
-    """The scene's cubes for the log: today's text with one cube."""
-    text = ', '.join(f'{h.object_id} (model_index {h.model_index})' for h in config.hiddens)
-    return f'hidden cube {text}' if len(config.hiddens) == 1 else \
-        f'{len(config.hiddens)} hidden cubes {text}'
 
 
 def main(args=None):

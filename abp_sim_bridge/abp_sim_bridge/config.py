@@ -300,13 +300,18 @@ class SimBridgeConfig:
     look_at_cube: bool = _default('look_at_cube')
     world: str = _default('world')
     mujoco: MujocoConfig = field(default_factory=MujocoConfig)
-    # Every cube of the scene, the first being `hidden` / `cube` (one entry each with K = 1).
-    hiddens: list = field(default_factory=list)
-    cubes: list = field(default_factory=list)
+    # (HiddenModel, Cube) of the scene's further cubes (num_cubes > 1).
+    more_cubes: list = field(default_factory=list)
 
-    def __post_init__(self):
-        self.hiddens = self.hiddens or [self.hidden]
-        self.cubes = self.cubes or [self.cube]
+    @property
+    def hiddens(self):
+        """Every cube's model, the first being `hidden`."""
+        return [self.hidden, *(h for h, _ in self.more_cubes)]
+
+    @property
+    def cubes(self):
+        """Every cube (its pose and mass), the first being `cube`."""
+        return [self.cube, *(c for _, c in self.more_cubes)]
 
     @property
     def look_at_point(self):
@@ -407,7 +412,8 @@ def build(values):
         offsamples=int(v['camera_offsamples']))
     return SimBridgeConfig(dict(v), hidden, cube, settings, failures, camera, distractors,
                            speedup, bool(v['publish_clock']), gt_rate, int(v['failure_seed']),
-                           bool(v['look_at_cube']), str(v['world']), mujoco, hiddens, cubes)
+                           bool(v['look_at_cube']), str(v['world']), mujoco,
+                           list(zip(hiddens[1:], cubes[1:])))
 
 
 def _scene(v, hidden, cube_size):

@@ -3,11 +3,14 @@
 Several ARcubes share tag ids (every cube of a model set carries tags 0..n-1), so a tag id
 does not name a cube: its position does. The aspect matcher node runs, per image:
 
-1. `group_features`: the tags of one image grouped into cubes. Each tag implies the cube
-   centre half an edge behind its face (`position - normal * cube_size / 2`; the
-   detector's rigid cube fit gives every tag of a fitted cube the same implied centre);
-   tags whose implied centres lie within `link` (default half an edge) of each other,
-   transitively, are one cube. A group of >= 2 tags has a fitted pose (`CubeView.fitted`).
+1. `group_features`: the tags of one image grouped into cubes: tags whose centres lie
+   within `link` (default one edge) of each other, transitively, are one cube. Tags on
+   adjacent faces of a cube are an edge / sqrt 2 apart, tags of two cubes at least the
+   cubes' spacing less an edge (0.2 m in the sim); tag centres come from range and image
+   position, which a wrong tilt (a lone tag's IPPE flip) hardly moves, so the grouping
+   does not use the normals. A cube's centre is the mean of the centres its tags imply,
+   half an edge behind each face (`position - normal * cube_size / 2`: one point for the
+   tags of a rigid cube fit). A group of >= 2 tags has a fitted pose (`CubeView.fitted`).
 2. `OdomBuffer.pose_at`: the base's odom pose at the image stamp (from /odom), so that the
    cube centres, measured in the base frame, become positions in `odom` that stay put
    while the robot drives around them.
@@ -61,15 +64,15 @@ def implied_centres(positions, normals, cube_size):
 
 def group_features(features, cube_size, link=None, rotations=None):
     """[CubeView] of the matcher features (`.position`, `.normal`, `.tag_id`) of one
-    image: single-linkage groups of implied centres within `link` (default cube_size / 2).
+    image: single-linkage groups of tag centres within `link` (default cube_size).
     `rotations`: each tag's (3, 3) orientation (None: a frame about its normal)."""
     n = len(features)
     if n == 0:
         return []
-    link = cube_size / 2 if link is None else float(link)
-    centres = implied_centres([f.position for f in features], [f.normal for f in features],
-                              cube_size)
-    close = np.linalg.norm(centres[:, None] - centres[None], axis=2) <= link
+    link = cube_size if link is None else float(link)
+    positions = np.array([f.position for f in features], dtype=float)
+    centres = implied_centres(positions, [f.normal for f in features], cube_size)
+    close = np.linalg.norm(positions[:, None] - positions[None], axis=2) <= link
     label = -np.ones(n, dtype=int)
     groups = []
     for start in range(n):

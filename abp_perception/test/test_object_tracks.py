@@ -36,6 +36,18 @@ def test_tags_of_three_cubes_with_the_same_ids_group_by_cube():
     assert len(lone) == 1 and not lone[0].fitted
 
 
+def test_a_tag_with_a_flipped_normal_stays_with_its_cube():
+    """A lone tag's pose can take IPPE's mirrored tilt: its implied centre moves by
+    centimetres, its own centre does not; the grouping goes by the tag centres."""
+    centre = np.array([0.8, -0.2, 0.05])
+    top, front = tag(0, centre, (0, 0, 1)), tag(1, centre, (-1, 0, 0))
+    tilted = np.array([-np.cos(np.radians(70)), 0.0, np.sin(np.radians(70))])
+    front = Feature(1, front.position, front.covariance, tilted, 1.0, 0.05)
+    views = group_features([top, front], EDGE)
+    assert len(views) == 1 and views[0].feature_indices == [0, 1]
+    assert np.linalg.norm(views[0].centre - centre) < 0.04   # half of its 6 cm error
+
+
 def test_a_cube_keeps_its_track_across_views_and_a_push_within_the_gate():
     tracker = ObjectTracker(gate=0.15)
     first = tracker.update([[0.5, 0.0, 0.05], [0.7, 0.3, 0.05]], 1)

@@ -138,3 +138,25 @@ def test_mujoco_world_has_a_free_body_per_cube_and_renders_them(kin):
         assert worst < 0.02
     finally:
         camera.close()
+
+
+def test_mujoco_contact_episode_is_with_the_cube_a_hand_touches(kin):
+    """A hand on the second cube opens the contact episode with that cube (the active
+    cube); the first cube's ground truth is left alone."""
+    import mujoco
+
+    config = cfg.build({'world': 'mujoco', 'num_cubes': 2, 'cube_seed': 0, 'camera_rate': 0.0})
+    world, camera = make_world(config, kin, camera_intrinsics())
+    try:
+        hand = next(iter(world.hand_positions().values()))
+        joint = world.model.body_jntadr[world._cube_bodies[1]]
+        adr = world.model.jnt_qposadr[joint]
+        world.data.qpos[adr:adr + 3] = hand + [0.06, 0.0, 0.0]   # ball radius 3.5 cm
+        mujoco.mj_forward(world.model, world.data)
+        assert world.hands_touching(1) and not world.hands_touching(0)
+        world._track_contacts()
+        assert world._active == 1 and world._episode is not None
+        np.testing.assert_allclose(world.cube_pose()[:3, 3], hand + [0.06, 0.0, 0.0])
+        np.testing.assert_allclose(world.display_cube(0).position, config.cubes[0].position)
+    finally:
+        camera.close()

@@ -1,5 +1,5 @@
-"""Object tracks over DDS: the real sim bridge (rules world, three cubes, a pair of them
-eccentric twins), artag_detector and aspect_matcher (multi_object) while the base turns
+"""Object tracks over DDS: the real sim bridge (rules and MuJoCo worlds, three cubes, a
+pair of them eccentric twins), artag_detector and aspect_matcher (multi_object) while the base turns
 left and right, so that cubes leave the view and come back. Every observation's track
 must map to exactly one cube of /abp/sim/scene_truth, and each cube to one track: zero
 association errors. The test reads the ground truth; no recognition node does."""
@@ -87,19 +87,20 @@ def in_odom(point, pose):
                      point[2]])
 
 
-def test_three_cubes_keep_their_tracks_across_views(ros_processes, tester, spin):
+@pytest.mark.parametrize('world', ('rules', 'mujoco'))
+def test_three_cubes_keep_their_tracks_across_views(ros_processes, tester, spin, world):
     node, executor = tester
     recorder = Recorder(node)
     cmd = node.create_publisher(TwistStamped, '/' + names.CMD_VEL, RELIABLE)
     sim_time = ['-p', 'use_sim_time:=true']
     ros_processes.start([executable('abp_sim_bridge', 'sim_bridge'), '--ros-args',
-                         '-p', 'world:=rules', '-p', 'num_cubes:=3', '-p', 'cube_seed:=1',
+                         '-p', f'world:={world}', '-p', 'num_cubes:=3', '-p', 'cube_seed:=1',
                          '-p', 'twin_cubes:=true', '-p', 'speedup:=2.0'])
     ros_processes.start([executable('abp_perception', 'artag_detector'), '--ros-args',
                          *sim_time])
     ros_processes.start([executable('abp_perception', 'aspect_matcher'), '--ros-args',
                          *sim_time, '-p', 'multi_object:=true'])
-    assert spin(executor, lambda: len(recorder.tracks()) >= 3, 90), \
+    assert spin(executor, lambda: len(recorder.tracks()) >= 3 and recorder.odom, 90), \
         f'three cubes not tracked from the start view: {recorder.tracks()}'
     for target in (TURN_RAD, -TURN_RAD, 0.0):
         turn_to(node, executor, spin, recorder, cmd, target)
@@ -116,12 +117,15 @@ def test_three_cubes_keep_their_tracks_across_views(ros_processes, tester, spin)
     # This node may have matched the sim bridge's /odom later than the matcher did.
     first_odom = min(recorder.odom)
     checked = [m for m in recorder.observations if stamp_ns(m.header.stamp) >= first_odom]
-    assert len(checked) >= len(recorder.observations) - 20
+    assert len(checked) >= 30, f'{len(checked)} observations after the first /odom'
     for msg in checked:
         assert msg.track_id, 'a multi-object observation without a track id'
         t = stamp_ns(msg.header.stamp)
-        pose = recorder.odom.get(t)
-        assert pose is not None, 'no /odom at an image stamp (the sim publishes one)'
+        # The sim publishes /odom at every frame's tick; a sample lost to a starved test
+        # node is stood in for by the nearest one (0.5 rad/s: 1.6 cm at 0.8 m in 40 ms).
+        nearest = min(recorder.odom, key=lambda s: abs(s - t))
+        assert abs(nearest - t) <= 40_000_000, 'no /odom near an image stamp'
+        pose = recorder.odom[nearest]
         centre = in_odom(observed_centre(msg), pose)
         distance = np.linalg.norm(truth - centre, axis=1)
         cube = int(np.argmin(distance))

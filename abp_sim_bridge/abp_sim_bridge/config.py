@@ -139,7 +139,9 @@ PARAMETERS = (
               'eccentric mass twins (same faces, different mass); model_index -1 draws the '
               'pair.'),
     ParamSpec('cube_spacing', DOUBLE, 0.3, 'With num_cubes > 1: least distance between two '
-              'cube centres, m.', (0.12, 5.0)),
+              'cube centres, m (the aspect matcher tells cubes apart when their tags are '
+              'more than an edge apart: keep it >= 2 edges, and twice its track_gate).',
+              (0.12, 5.0)),
     ParamSpec('scene_radius', DOUBLE_ARRAY, [0.45, 0.85], 'With num_cubes > 1: [r_min, r_max], '
               'the distances from the start pose the cubes are placed at, m (the camera sees '
               '0.3..1.4 m when aimed at 0.65 m).'),

@@ -16,6 +16,10 @@
 #   --world W            sim world: mujoco (physics, MuJoCo camera) | rules (contact rules,
 #                        flat renderer; fast)                            (default mujoco)
 #   --object N           hidden cube in sim: index into the model set (default: seeded random)
+#   --objects K          cubes in the scene (sim: K models without repeats, seeded, >= 0.3 m
+#                        apart; the first is --object's); K > 1 turns object tracking on in
+#                        the aspect matcher (docs/MULTI_OBJECT.md)                (default 1)
+#   --twins              sim, --objects >= 2: the first two cubes are eccentric mass twins
 #   --models SET         robot | random:N | full | visual | path/to/models.npz  (default robot)
 #   --tables T           hand-written ATG table of a generated set (docs/MODEL.md): corrected
 #                        | paper (default paper in the rules world, whose physics it is, else
@@ -83,7 +87,7 @@
 set -euo pipefail
 REPO="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 
-robot=0; object=-1; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
+robot=0; object=-1; objects=1; twins=false; models=robot; planner=cost; seed=0; params=""; record=""; result_json=""
 speedup=10; max_actions=30; timeout=1800; log_dir=""; namespace=""; world=mujoco; build=1
 tables=""; dictionary=""; robot_profile=""; models_given=0
 respawn=1; serve=0; record_images=false; one_process=0; part=all
@@ -107,6 +111,8 @@ while [ $# -gt 0 ]; do
     --jpeg-quality) jpeg_quality="${2:?--jpeg-quality needs a value}"; shift 2 ;;
     --discovery-server) discovery_server="${2:?--discovery-server needs HOST:PORT}"; shift 2 ;;
     --object) object="${2:?--object needs a value}"; shift 2 ;;
+    --objects) objects="${2:?--objects needs a value}"; shift 2 ;;
+    --twins) twins=true; shift ;;
     --models) models="${2:?--models needs a value}"; models_given=1; shift 2 ;;
     --robot-profile) robot_profile="${2:?--robot-profile needs a file}"; shift 2 ;;
     --tables) tables="${2:?--tables needs a value}"; shift 2 ;;
@@ -151,6 +157,12 @@ fi
 [ -n "$tables" ] || { [ "$world" = rules ] && [ "$robot" = 0 ] && tables=paper || tables=corrected; }
 [[ "$tables" =~ ^(corrected|paper)$ ]] || die "--tables must be corrected or paper"
 [[ "$object" =~ ^-?[0-9]+$ ]] || die "--object must be a model index"
+[[ "$objects" =~ ^[0-9]+$ ]] && [ "$objects" -ge 1 ] && [ "$objects" -le 20 ] \
+  || die "--objects must be an integer from 1 to 20"
+[ "$twins" = false ] || [ "$objects" -ge 2 ] || die "--twins needs --objects 2 or more"
+[ "$objects" = 1 ] || [ -z "$operator" ] \
+  || die "--objects goes with the sim or robot graph: leave out --operator"
+tracking_args=(); [ "$objects" -gt 1 ] && tracking_args=(-p multi_object:=true)
 [[ "$seed" =~ ^[0-9]+$ ]] || die "--seed must be a non-negative integer"
 [ -z "$params" ] || [ -f "$params" ] || die "--params file $params not found"
 [ -z "$record" ] || [ ! -e "$record" ] || die "--record $record exists: rosbag2 never overwrites a bag"
@@ -460,12 +472,13 @@ fi
 if [ -z "$operator" ]; then
 if [ "$robot" = 0 ]; then
   start_managed abp_sim_bridge sim_bridge -p "world:=$world" -p "model_index:=$object" \
-    -p "cube_seed:=$seed" -p "speedup:=$speedup" "${compressed_args[@]}"
+    -p "cube_seed:=$seed" -p "speedup:=$speedup" -p "num_cubes:=$objects" \
+    -p "twin_cubes:=$twins" "${compressed_args[@]}"
 fi
 # The robot's tf tree (/tf, /tf_static, robot_description) from /joint_states and /odom.
 start_managed abp_description robot_state
 start_managed abp_perception artag_detector "${transport_args[@]}"
-start_managed abp_perception aspect_matcher
+start_managed abp_perception aspect_matcher "${tracking_args[@]}"
 start_managed abp_belief belief
 # The four action servers in one process: four processes, each with its own executor
 # taking /joint_states, /odom and /clock, cost about 1.2 cores of the 2 when idle.

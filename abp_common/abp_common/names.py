@@ -27,6 +27,7 @@ PLAN = 'abp/plan'
 MARKERS = 'abp/markers'
 SKILLS_ACTIVE = 'abp/skills/active'
 GROUND_TRUTH = 'abp/sim/ground_truth'  # tests and benchmarks only: no recogniser reads it
+SCENE_TRUTH = 'abp/sim/scene_truth'    # every cube of the scene; tests and benchmarks only
 
 # Services and actions.
 RESET_BELIEF = 'abp/reset_belief'

@@ -153,6 +153,20 @@ MATCHER_SPECS = (
     ParamSpec('max_hypotheses', INT, 10, 'Hypotheses per observation, best first.', (1, 1000)),
     ParamSpec('distance_samples', INT, 0, 'Sample the inter-feature distance Gaussians with '
               'this many samples (paper); 0 = propagate the covariances.', (0, 10000)),
+    # Object tracks (docs/MULTI_OBJECT.md; abp_perception.object_tracks).
+    ParamSpec('multi_object', BOOL, False, 'Several cubes in view: group the tags of an image '
+              'into cubes, track the cubes in odom (needs /odom) and publish one '
+              'AspectObservation per cube with its track_id and cube_pose. false: one '
+              'observation per image with every tag, track_id empty (one cube).',
+              read_only=True),
+    ParamSpec('track_gate', DOUBLE, 0.15, 'multi_object: a cube seen within this distance '
+              '(odom, m) of a track is that track; further away it starts a new one; within '
+              'it of two tracks (or two cubes of one track) it is ambiguous: reported, not '
+              'associated. Keep it under half the least cube spacing, above a push.',
+              (0.01, 2.0), read_only=True),
+    ParamSpec('odom_tolerance_s', DOUBLE, 0.05, 'multi_object: an image needs an /odom pose '
+              'within this time of its stamp (else its tags are skipped, counted).',
+              (0.0, 10.0), read_only=True),
 )
 MATCHER_PARAMETERS = tuple(p.name for p in MATCHER_SPECS if not p.read_only)
 

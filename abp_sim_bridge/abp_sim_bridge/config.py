@@ -29,7 +29,17 @@ from .flat_renderer import DEFAULT_DICTIONARY, ImageEffects, check_tag_ids
 from .rules_contact import ContactParams
 from .rules_physics import Cube, Failures
 from .rules_world import SimSettings
-from .scenario import HiddenModel, choose_hidden_model, initial_cube, make_distractors
+from .scenario import (
+    HiddenModel,
+    choose_hidden_model,
+    facing_yaw,
+    hidden_model,
+    initial_cube,
+    load_model_set,
+    make_distractors,
+    place_cubes,
+    scene_models,
+)
 
 SEED_RANGE = (0, 2**31 - 1)
 # The model set the hidden cube is drawn from: the belief node's own parameters (so one
@@ -117,6 +127,27 @@ PARAMETERS = (
               'after cube_up_face).', (-10.0, 10.0)),
     ParamSpec('cube_up_face', INT, 4, 'Initial body face up (0:+x 1:-x 2:+y 3:-y 4:+z 5:-z), '
               "with MODEL.md's reference rotation R_UP.", (0, 5)),
+    # -- several cubes (docs/MULTI_OBJECT.md) ----------------------------------------------
+    ParamSpec('num_cubes', INT, 1, 'Cubes in the scene. 1: the hidden cube alone at cube_x, '
+              'cube_y (as always). K > 1: the hidden cube and K - 1 further models of the set '
+              '(no repeats, drawn with cube_seed), placed with cube_seed in the sector '
+              'scene_radius x +-scene_half_angle_deg in front of the start pose, at least '
+              'cube_spacing apart (cube_x, cube_y ignored; each cube turned to face the robot, '
+              'then by cube_yaw for the first and a seeded multiple of 45 deg for the others). '
+              'Manual actions act on the cube the hands touch.', (1, 20)),
+    ParamSpec('twin_cubes', BOOL, False, 'With num_cubes >= 2: the first two cubes are '
+              'eccentric mass twins (same faces, different mass); model_index -1 draws the '
+              'pair.'),
+    ParamSpec('cube_spacing', DOUBLE, 0.3, 'With num_cubes > 1: least distance between two '
+              'cube centres, m (the aspect matcher tells cubes apart when their tags are '
+              'more than an edge apart: keep it >= 2 edges, and twice its track_gate).',
+              (0.12, 5.0)),
+    ParamSpec('scene_radius', DOUBLE_ARRAY, [0.45, 0.85], 'With num_cubes > 1: [r_min, r_max], '
+              'the distances from the start pose the cubes are placed at, m (the camera sees '
+              '0.3..1.4 m when aimed at 0.65 m).'),
+    ParamSpec('scene_half_angle_deg', DOUBLE, 20.0, 'With num_cubes > 1: the cubes are placed '
+              'within this bearing of the start heading, deg (the camera sees +-30 deg).',
+              (1.0, 180.0)),
     # -- camera ---------------------------------------------------------------------------
     ParamSpec('camera_encoding', STRING, 'mono8', 'Image encoding.',
               choices=('mono8', 'bgr8')),
@@ -271,6 +302,23 @@ class SimBridgeConfig:
     look_at_cube: bool = _default('look_at_cube')
     world: str = _default('world')
     mujoco: MujocoConfig = field(default_factory=MujocoConfig)
+    # (HiddenModel, Cube) of the scene's further cubes (num_cubes > 1).
+    more_cubes: list = field(default_factory=list)
+
+    @property
+    def hiddens(self):
+        """Every cube's model, the first being `hidden`."""
+        return [self.hidden, *(h for h, _ in self.more_cubes)]
+
+    @property
+    def cubes(self):
+        """Every cube (its pose and mass), the first being `cube`."""
+        return [self.cube, *(c for _, c in self.more_cubes)]
+
+    @property
+    def look_at_point(self):
+        """Where the head looks at the start: the cube, or the centroid of the cubes."""
+        return np.mean([c.position for c in self.cubes], axis=0)
 
 
 def _array(value):
@@ -326,8 +374,8 @@ def build(values):
                                      v['model_file'], v['model_index'], v['cube_seed'])
     except ValueError as err:
         raise ValueError(f'hidden cube: {err}') from err
-    cube = initial_cube(hidden, float(v['cube_x']), float(v['cube_y']), float(v['cube_yaw']),
-                        int(v['cube_up_face']), cube_size, float(v['mass_offset']))
+    hiddens, cubes = _scene(v, hidden, cube_size)
+    hidden, cube = hiddens[0], cubes[0]
     if np.hypot(cube.position[0], cube.position[1]) < cube.half * np.sqrt(2) + 0.05:
         raise ValueError('cube_x, cube_y: the cube must not stand on the robot (keep it at '
                          'least 12 cm from the odom origin)')
@@ -352,8 +400,8 @@ def build(values):
                           cube_size, float(v['p_missed_tag']), str(v['dictionary']))
     distractors = make_distractors(int(v['distractors']), int(v['distractor_seed']),
                                    cube.position[:2], tag_size, hidden.n_tags,
-                                   avoid=hidden.face_tags)
-    check_dictionary(camera.dictionary, hidden.face_tags, distractors)
+                                   avoid={t for h in hiddens for t in h.face_tags})
+    check_dictionary(camera.dictionary, {t for h in hiddens for t in h.face_tags}, distractors)
     offsets = tuple(float(x) for x in _array(v['joint_offsets']))
     if offsets and len(offsets) != 13:
         raise ValueError('joint_offsets must give 13 angles (URDF joint order, as '
@@ -366,7 +414,49 @@ def build(values):
         offsamples=int(v['camera_offsamples']))
     return SimBridgeConfig(dict(v), hidden, cube, settings, failures, camera, distractors,
                            speedup, bool(v['publish_clock']), gt_rate, int(v['failure_seed']),
-                           bool(v['look_at_cube']), str(v['world']), mujoco)
+                           bool(v['look_at_cube']), str(v['world']), mujoco,
+                           list(zip(hiddens[1:], cubes[1:])))
+
+
+def _scene(v, hidden, cube_size):
+    """([HiddenModel], [Cube]) of the scene: the hidden cube at cube_x, cube_y alone, or
+    num_cubes models of the set placed by scenario.place_cubes."""
+    count, up, offset = int(v['num_cubes']), int(v['cube_up_face']), float(v['mass_offset'])
+    if count == 1:
+        if v['twin_cubes']:
+            raise ValueError('twin_cubes needs num_cubes >= 2')
+        return [hidden], [initial_cube(hidden, float(v['cube_x']), float(v['cube_y']),
+                                       float(v['cube_yaw']), up, cube_size, offset)]
+    if hidden.model_index < 0:
+        raise ValueError('num_cubes > 1 draws the cubes from the model set: leave face_tags '
+                         'empty')
+    models = load_model_set(v['model_set'], v['model_set_size'], v['n_tags'], v['seed'],
+                            v['model_file'])
+    first = -1 if v['twin_cubes'] and int(v['model_index']) == -1 else hidden.model_index
+    try:
+        indices = scene_models(first, count, models, int(v['cube_seed']), bool(v['twin_cubes']))
+    except ValueError as err:
+        raise ValueError(f'num_cubes: {err}') from err
+    radius = _array(v['scene_radius'])
+    if len(radius) != 2:
+        raise ValueError(f'scene_radius must be [r_min, r_max], got {radius}')
+    centres = place_cubes(count, int(v['cube_seed']), float(v['cube_spacing']), radius,
+                          float(v['scene_half_angle_deg']))
+    steps = np.random.default_rng([int(v['cube_seed']), 39]).integers(8, size=count)
+    hiddens, cubes = [], []
+    for k, (index, xy) in enumerate(zip(indices, centres)):
+        h = hidden_model(models, index)
+        yaw = facing_yaw(xy) + (float(v['cube_yaw']) if k == 0 else steps[k] * np.pi / 4)
+        hiddens.append(h)
+        cubes.append(initial_cube(h, float(xy[0]), float(xy[1]), yaw, up, cube_size, offset))
+    return hiddens, cubes
+
+
+def scene_summary(config):
+    """The scene's cubes for the log: today's text with one cube."""
+    text = ', '.join(f'{h.object_id} (model_index {h.model_index})' for h in config.hiddens)
+    return f'hidden cube {text}' if len(config.hiddens) == 1 else \
+        f'{len(config.hiddens)} hidden cubes {text}'
 
 
 def refusal(values, changes):
@@ -388,4 +478,4 @@ def refusal(values, changes):
 
 __all__ = ['LIVE_PARAMETERS', 'MODEL_SET_SPECS', 'PARAMETERS', 'PARAMETER_NAMES', 'WORLDS',
            'CameraConfig', 'MujocoConfig', 'SimBridgeConfig', 'build', 'check_speedup', 'defaults',
-           'description_note', 'refusal']
+           'description_note', 'refusal', 'scene_summary']

@@ -308,10 +308,12 @@ class ArcubeRenderer:
 
     # -- public -----------------------------------------------------------------------------
 
-    def render(self, camera_pose, cube_pose=None, tag_ids=None, distractors=(), effects=None):
+    def render(self, camera_pose, cube_pose=None, tag_ids=None, distractors=(), effects=None,
+               more_cubes=()):
         """Image (H x W uint8, or H x W x 3 for bgr8) seen from `camera_pose` (4x4 optical
         frame in the world). `cube_pose` None renders no cube; `tag_ids` gives the tag on each
-        body face (-1: blank face). `distractors`: Distractor or (id, pose, size) tuples."""
+        body face (-1: blank face). `distractors`: Distractor or (id, pose, size) tuples.
+        `more_cubes`: further (cube_pose, tag_ids) of a scene of several cubes."""
         camera_pose = np.asarray(camera_pose, dtype=float)
         world_to_cam = _invert(camera_pose)
         cam_centre = camera_pose[:3, 3]
@@ -323,6 +325,10 @@ class ArcubeRenderer:
             if tag_ids is None or len(tag_ids) != 6:
                 raise ValueError('tag_ids must give one tag id per body face (6)')
             quads += self._cube_quads(cam_centre, np.asarray(cube_pose, float), tag_ids)
+        for pose, tags in more_cubes:
+            if len(tags) != 6:
+                raise ValueError('tag_ids must give one tag id per body face (6)')
+            quads += self._cube_quads(cam_centre, np.asarray(pose, float), tags)
         for d in distractors:
             if not isinstance(d, Distractor):
                 d = Distractor(*d)

@@ -36,7 +36,7 @@ import cv2  # noqa: E402
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-from abp_belief.cube import FACE_NORMALS  # noqa: E402
+from abp_belief.cube import FACE_NORMALS, NUM_YAWS, R_UP  # noqa: E402
 from abp_description import camera_intrinsics  # noqa: E402
 from abp_description.robot_profile import load_profile  # noqa: E402
 
@@ -137,6 +137,37 @@ class SceneSettings:
                 raise ValueError(f'{name} must be > 0')
         if self.hand_torsional_friction < 0:
             raise ValueError('hand_torsional_friction must be >= 0')
+
+
+@dataclass(frozen=True)
+class CubeState:
+    """The cube's continuous pose and hidden mass (ground truth)."""
+
+    position: np.ndarray     # (3,) centre, world
+    rotation: np.ndarray     # (3, 3) body -> world
+    heavy_face: int | None
+    edge: float
+    mass_offset: float
+
+    def pose(self):
+        out = np.eye(4)
+        out[:3, :3], out[:3, 3] = self.rotation, self.position
+        return out
+
+
+def discrete_state(cube_pose, base_pose):
+    """MODEL.md's (up, yaw) of a cube (4x4 world pose) seen from the base (x, y, yaw):
+    `up` the body face pointing most upwards, `yaw` the nearest 45-deg step of Rz in
+    R = Rz(yaw) R_UP[up], R the rotation body -> view frame V (x_V from the cube towards
+    the robot, z up)."""
+    to_robot = np.asarray(base_pose[:2], dtype=float) - cube_pose[:2, 3]
+    x_v = np.array([*to_robot, 0.0]) / np.linalg.norm(to_robot)
+    view = np.column_stack([x_v, np.cross([0.0, 0.0, 1.0], x_v), [0.0, 0.0, 1.0]])
+    rel = view.T @ cube_pose[:3, :3]
+    up = int(np.argmax((rel @ FACE_NORMALS.T)[2]))
+    rz = rel @ R_UP[up].T
+    yaw = int(np.round(np.arctan2(rz[1, 0], rz[0, 0]) / (2 * np.pi / NUM_YAWS))) % NUM_YAWS
+    return up, yaw
 
 
 def tag_texture(tag_id, edge, tag_edge, pixels=256, dictionary=DEFAULT_DICTIONARY):
@@ -243,22 +274,28 @@ def _add_camera(spec, settings, profile):
     return height
 
 
-def _add_cube(spec, cube):
-    body = spec.worldbody.add_body(name=CUBE_BODY, pos=list(cube.position))
+def cube_prefix(index):
+    """Name prefix of cube `index` of a scene's bodies, geoms, textures: the first cube's
+    names are those of a one-cube scene (arcube, arcube_box, arcube_face_0, ...)."""
+    return CUBE_BODY if index == 0 else f'{CUBE_BODY}{index}'
+
+
+def _add_cube(spec, cube, prefix=CUBE_BODY):
+    body = spec.worldbody.add_body(name=prefix, pos=list(cube.position))
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.ascontiguousarray(cube.rotation).ravel())
     body.quat = list(quat)
-    body.add_freejoint(name='arcube_free')
+    body.add_freejoint(name=f'{prefix}_free')
     heavy = cube.heavy_face is not None and cube.heavy_mass_ratio > 0
     slab_mass = cube.mass * cube.heavy_mass_ratio if heavy else 0.0
-    body.add_geom(name=CUBE_GEOM, type=mujoco.mjtGeom.mjGEOM_BOX, size=[cube.half] * 3,
+    body.add_geom(name=f'{prefix}_box', type=mujoco.mjtGeom.mjGEOM_BOX, size=[cube.half] * 3,
                   mass=cube.mass - slab_mass, friction=[cube.friction, 0.0, 0.0],
                   contype=WORLD_BIT, conaffinity=WORLD_BIT | ROBOT_BIT, condim=3,
                   rgba=[1, 1, 1, 1])
     if heavy:
         normal = FACE_NORMALS[int(cube.heavy_face)]
         size = np.where(normal != 0, cube.heavy_slab_thickness / 2, cube.half - 0.005)
-        body.add_geom(name='arcube_heavy_slab', type=mujoco.mjtGeom.mjGEOM_BOX,
+        body.add_geom(name=f'{prefix}_heavy_slab', type=mujoco.mjtGeom.mjGEOM_BOX,
                       size=list(size), pos=list(normal * cube.slab_offset), mass=slab_mass,
                       contype=0, conaffinity=0, group=COLLISION_GROUP, rgba=[0.3, 0.3, 0.3, 1])
     # Tag quads just outside the faces (visual only, massless: shell inertia, no density).
@@ -267,19 +304,19 @@ def _add_cube(spec, cube):
     for face, tag in enumerate(cube.face_tags):
         axes = FACE_TAG_AXES[face]
         verts = corners @ axes[:, :2].T + (h + lift) * axes[:, 2]
-        tex = spec.add_texture(name=f'arcube_tag_{face}', type=mujoco.mjtTexture.mjTEXTURE_2D)
+        tex = spec.add_texture(name=f'{prefix}_tag_{face}', type=mujoco.mjtTexture.mjTEXTURE_2D)
         image = tag_texture(int(tag), cube.edge, cube.tag_edge, dictionary=cube.dictionary)
         tex.width, tex.height, tex.nchannel = image.shape[1], image.shape[0], 3
         tex.data = image.tobytes()
-        mat = spec.add_material(name=f'arcube_face_{face}')
+        mat = spec.add_material(name=f'{prefix}_face_{face}')
         mat.textures[mujoco.mjtTextureRole.mjTEXROLE_RGB] = tex.name
-        mesh = spec.add_mesh(name=f'arcube_face_{face}')
+        mesh = spec.add_mesh(name=f'{prefix}_face_{face}')
         mesh.uservert = verts.ravel().tolist()
         mesh.userface = [0, 3, 2, 0, 2, 1]  # counter-clockwise seen from outside
         # MuJoCo's texture v runs from the first image row (v = 0) down.
         mesh.usertexcoord = [0, 0, 1, 0, 1, 1, 0, 1]
         mesh.inertia = mujoco.mjtMeshInertia.mjMESH_INERTIA_SHELL
-        body.add_geom(name=f'arcube_face_{face}', type=mujoco.mjtGeom.mjGEOM_MESH,
+        body.add_geom(name=f'{prefix}_face_{face}', type=mujoco.mjtGeom.mjGEOM_MESH,
                       meshname=mesh.name, material=mat.name, contype=0, conaffinity=0,
                       group=1, mass=0.0, density=0.0)
     return body
@@ -340,9 +377,10 @@ def add_room(spec, shadows):
     return floor
 
 
-def build_spec(cube=None, settings=None, distractors=(), profile=None):
+def build_spec(cube=None, settings=None, distractors=(), profile=None, more_cubes=()):
     """The scene as an MjSpec (see the module doc); `distractors`: flat tags elsewhere;
-    `profile`: the robot (default: the uBot-6 profile)."""
+    `profile`: the robot (default: the uBot-6 profile); `more_cubes`: further CubeSpecs
+    of a scene of several cubes (free bodies `cube_prefix(1)`, ...; they touch each other)."""
     cube = cube or CubeSpec()
     settings = settings or SceneSettings()
     profile = profile if profile is not None else load_profile()
@@ -365,15 +403,18 @@ def build_spec(cube=None, settings=None, distractors=(), profile=None):
     floor.friction = [settings.floor_friction, 0.005, 0.0001]
     floor.contype, floor.conaffinity = WORLD_BIT, WORLD_BIT | ROBOT_BIT
     _add_cube(spec, cube)
+    for index, other in enumerate(more_cubes, start=1):
+        _add_cube(spec, other, cube_prefix(index))
     _add_distractors(spec, distractors, cube.dictionary)
     return spec
 
 
-def build_model(cube=None, settings=None, distractors=(), profile=None):
+def build_model(cube=None, settings=None, distractors=(), profile=None, more_cubes=()):
     """(MjModel, MjSpec) of the scene."""
-    spec = build_spec(cube, settings, distractors, profile)
+    spec = build_spec(cube, settings, distractors, profile, more_cubes)
     return spec.compile(), spec
 
 
-__all__ = ['BASE_JOINTS', 'CAMERA_NAME', 'CUBE_BODY', 'CUBE_GEOM', 'CubeSpec', 'HAND_GEOM_SUFFIX',
-           'SceneSettings', 'build_model', 'build_spec', 'hand_bodies', 'tag_texture']
+__all__ = ['BASE_JOINTS', 'CAMERA_NAME', 'CUBE_BODY', 'CUBE_GEOM', 'CubeSpec', 'CubeState',
+           'HAND_GEOM_SUFFIX', 'SceneSettings', 'build_model', 'build_spec', 'cube_prefix',
+           'discrete_state', 'hand_bodies', 'tag_texture']

@@ -31,7 +31,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from abp_belief.cube import FACE_NORMALS, NUM_YAWS, R_UP
 from abp_description import camera_intrinsics
 from abp_description.frames import se2_between, se2_compose, wrap_rad
 from abp_description.kinematics import RobotKinematics
@@ -45,8 +44,11 @@ from .mujoco_scene import (
     CUBE_GEOM,
     HAND_GEOM_SUFFIX,
     CubeSpec,
+    CubeState,
     SceneSettings,
     build_model,
+    cube_prefix,
+    discrete_state,
     hand_bodies,
     mujoco,
     rendered_as,
@@ -55,22 +57,6 @@ from .world_interface import CommandInputs, ContactEvent
 
 EGL_HINT = ('MuJoCo offscreen rendering needs EGL (MUJOCO_GL=egl): install it with '
             '`apt-get install libegl1 libgl1-mesa-dri` or use the project Docker image')
-
-
-@dataclass(frozen=True)
-class CubeState:
-    """The cube's continuous pose and hidden mass (ground truth)."""
-
-    position: np.ndarray     # (3,) centre, world
-    rotation: np.ndarray     # (3, 3) body -> world
-    heavy_face: int | None
-    edge: float
-    mass_offset: float
-
-    def pose(self):
-        out = np.eye(4)
-        out[:3, :3], out[:3, 3] = self.rotation, self.position
-        return out
 
 
 def draw_contact_fault(rng, p_slip_grasp, p_missed_push, slip_grasp_opening,
@@ -83,21 +69,6 @@ def draw_contact_fault(rng, p_slip_grasp, p_missed_push, slip_grasp_opening,
     opening = slip * slip_grasp_opening + miss * missed_push_offset
     label = ' and '.join(n for n, on in (('slip', slip), ('missed push', miss)) if on)
     return opening, label
-
-
-def discrete_state(cube_pose, base_pose):
-    """MODEL.md's (up, yaw) of a cube (4x4 world pose) seen from the base (x, y, yaw):
-    `up` the body face pointing most upwards, `yaw` the nearest 45-deg step of Rz in
-    R = Rz(yaw) R_UP[up], R the rotation body -> view frame V (x_V from the cube towards
-    the robot, z up)."""
-    to_robot = np.asarray(base_pose[:2], dtype=float) - cube_pose[:2, 3]
-    x_v = np.array([*to_robot, 0.0]) / np.linalg.norm(to_robot)
-    view = np.column_stack([x_v, np.cross([0.0, 0.0, 1.0], x_v), [0.0, 0.0, 1.0]])
-    rel = view.T @ cube_pose[:3, :3]
-    up = int(np.argmax((rel @ FACE_NORMALS.T)[2]))
-    rz = rel @ R_UP[up].T
-    yaw = int(np.round(np.arctan2(rz[1, 0], rz[0, 0]) / (2 * np.pi / NUM_YAWS))) % NUM_YAWS
-    return up, yaw
 
 
 @dataclass
@@ -205,22 +176,25 @@ class MujocoWorld(CommandInputs):
     `heavy_face` (None or body face 0..5) and `edge` (m), e.g. the node's configured
     cube or a `mujoco_scene.CubeSpec`; `face_tags`: tag ids on body faces +x -x +y -y +z -z;
     `robot_pose`: the true base pose (x, y, yaw) at the start (odometry starts there too).
+    `more_cubes`: (cube, face_tags) of further cubes (free bodies; a contact episode is
+    with the cube a hand touches first, the *active* cube).
     """
 
     def __init__(self, cube, face_tags=(0, 1, 2, 3, 4, 5), settings=None,
                  kinematics=None, start_time_ns=0, robot_pose=(0.0, 0.0, 0.0),
-                 distractors=()):
+                 distractors=(), more_cubes=()):
         self.settings = s = settings or MujocoSettings()
         self.kin = kin = kinematics if kinematics is not None else RobotKinematics()
         self.period_ns = s.period_ns
         self.dt = self.period_ns * 1e-9
         self.substeps = max(1, int(np.ceil(self.dt * s.physics_rate - 1e-9)))
         self.time_ns = int(start_time_ns)
-        self.cube_spec = CubeSpec(
-            position=cube.position, rotation=cube.rotation, face_tags=tuple(face_tags),
-            edge=cube.edge, tag_edge=s.tag_edge, mass=s.cube_mass, heavy_face=cube.heavy_face,
+        self.cube_specs = [CubeSpec(
+            position=c.position, rotation=c.rotation, face_tags=tuple(tags),
+            edge=c.edge, tag_edge=s.tag_edge, mass=s.cube_mass, heavy_face=c.heavy_face,
             heavy_mass_ratio=s.heavy_mass_ratio, friction=s.cube_friction * s.friction_scale,
-            dictionary=s.tag_dictionary)
+            dictionary=s.tag_dictionary) for c, tags in [(cube, face_tags), *more_cubes]]
+        self.cube_spec = self.cube_specs[0]
         self.scene_settings = SceneSettings(
             timestep=self.dt / self.substeps,
             hand_friction=s.hand_friction * s.friction_scale,
@@ -230,7 +204,7 @@ class MujocoWorld(CommandInputs):
             offsamples=s.offsamples, width=s.width, height=s.height)
         profile = kin.profile
         self.model, self.spec = build_model(self.cube_spec, self.scene_settings, distractors,
-                                            profile)
+                                            profile, self.cube_specs[1:])
         self.data = mujoco.MjData(self.model)
         m = self.model
         self.joint_names = kin.joint_names
@@ -255,7 +229,12 @@ class MujocoWorld(CommandInputs):
         self._hand_geom = {side: m.geom(body + HAND_GEOM_SUFFIX).id
                            for side, body in hands.items()}
         self._optical_body = m.body(profile.frames.camera_optical).id
-        self._face_geoms = np.array([m.geom(f'arcube_face_{f}').id for f in range(6)])
+        prefixes = [cube_prefix(i) for i in range(len(self.cube_specs))]
+        self._cube_bodies = [m.body(p).id for p in prefixes]
+        self._cube_geoms = [m.geom(f'{p}_box').id for p in prefixes]
+        self._face_geoms = np.array([[m.geom(f'{p}_face_{f}').id for f in range(6)]
+                                     for p in prefixes])
+        self._active = 0   # the cube of the contact episode (the last one touched)
         self.heavy_face = cube.heavy_face
         self.edge = cube.edge
 
@@ -409,14 +388,15 @@ class MujocoWorld(CommandInputs):
             f'dyaw {np.degrees(err[2]):+.1f} deg')))
 
     # -- manual actions recognised from the contacts --------------------------------------
-    def hands_touching(self):
-        """The sides whose hand ball touches the cube now."""
+    def hands_touching(self, index=None):
+        """The sides whose hand ball touches cube `index` (None: the active cube) now."""
         d = self.data
         ncon = d.ncon
         if ncon == 0:
             return set()
         geoms = d.contact.geom[:ncon]
-        with_cube = np.any(geoms == self._cube_geom, axis=1)
+        cube = self._cube_geoms[self._active if index is None else index]
+        with_cube = np.any(geoms == cube, axis=1)
         return {side for side, g in self._hand_geom.items()
                 if np.any(with_cube & np.any(geoms == g, axis=1))}
 
@@ -433,6 +413,12 @@ class MujocoWorld(CommandInputs):
         touching = self.hands_touching()
         now = self.time_ns
         ep = self._episode
+        if ep is None and not touching and len(self._cube_bodies) > 1:
+            # Out of an episode: the next one is with whichever cube a hand touches.
+            for index in range(len(self._cube_bodies)):
+                if self.hands_touching(index):
+                    self._active, touching = index, self.hands_touching(index)
+                    break
         if ep is None:
             if not touching:
                 return []
@@ -466,7 +452,7 @@ class MujocoWorld(CommandInputs):
         return [event]
 
     def _cube_dofs(self):
-        adr = self.model.body_dofadr[self._cube_body]
+        adr = self.model.body_dofadr[self._cube_bodies[self._active]]
         return np.arange(adr, adr + 6)
 
     def _classify(self, ep):
@@ -517,22 +503,24 @@ class MujocoWorld(CommandInputs):
         out[:3, 3] = self.data.xpos[self._optical_body]
         return out
 
-    def cube_pose(self):
-        """4x4 world pose of the cube's body frame (continuous ground truth)."""
+    def cube_pose(self, index=None):
+        """4x4 world pose of cube `index`'s body frame (continuous ground truth; None: the
+        active cube, the only one of a one-cube scene)."""
+        body = self._cube_bodies[self._active if index is None else index]
         out = np.eye(4)
-        out[:3, :3] = self.data.xmat[self._cube_body].reshape(3, 3)
-        out[:3, 3] = self.data.xpos[self._cube_body]
+        out[:3, :3] = self.data.xmat[body].reshape(3, 3)
+        out[:3, 3] = self.data.xpos[body]
         return out
 
-    def display_cube(self):
-        """The cube's pose and hidden mass, for the ground-truth message."""
-        pose = self.cube_pose()
-        return CubeState(pose[:3, 3], pose[:3, :3], self.heavy_face, self.edge,
-                         self.cube_spec.mass_offset)
+    def display_cube(self, index=0):
+        """Cube `index`'s pose and hidden mass, for the ground-truth message."""
+        pose, spec = self.cube_pose(index), self.cube_specs[index]
+        return CubeState(pose[:3, 3], pose[:3, :3], spec.heavy_face, spec.edge,
+                         spec.mass_offset)
 
-    def discrete_state(self):
-        """(up, yaw) of the cube relative to the true base (MODEL.md)."""
-        return discrete_state(self.cube_pose(), self.robot_pose())
+    def discrete_state(self, index=None):
+        """(up, yaw) of cube `index` (None: the active one) relative to the true base."""
+        return discrete_state(self.cube_pose(index), self.robot_pose())
 
     # -- camera -------------------------------------------------------------------------
     def snapshot(self):
@@ -541,9 +529,9 @@ class MujocoWorld(CommandInputs):
 
     def render(self, qpos=None, encoding='rgb8', blank_faces=()):
         """Head camera image (HxWx3 uint8 RGB, or BGR / mono8) of the current state or of
-        a `snapshot()`; the tags of the body faces `blank_faces` are not drawn (a missed
-        tag: the face shows blank). The first call creates the GL context in the calling
-        thread; call it from one thread only."""
+        a `snapshot()`; the tags of `blank_faces` are not drawn (a missed tag: the face
+        shows blank): body faces of the first cube, or (cube, face) pairs. The first call
+        creates the GL context in the calling thread; call it from one thread only."""
         if self._renderer is None:
             s, intr = self.settings, camera_intrinsics()
             try:
@@ -565,12 +553,13 @@ class MujocoWorld(CommandInputs):
 
     def _blank(self, data, faces):
         """Sink the tag quads of `faces` into the cube (its white box face then hides them)."""
-        hidden = set(self._face_geoms[list(faces)].tolist())
-        centre = data.xpos[self._cube_body]
+        pairs = [(0, f) if np.isscalar(f) else tuple(f) for f in faces]
+        hidden = {int(self._face_geoms[c, f]): self._cube_bodies[c] for c, f in pairs}
         scene = self._renderer.scene
         for i in range(scene.ngeom):
             geom = scene.geoms[i]
             if geom.objtype == mujoco.mjtObj.mjOBJ_GEOM and geom.objid in hidden:
+                centre = data.xpos[hidden[geom.objid]]
                 geom.pos[:] = centre + 0.5 * (geom.pos - centre)
 
     def close(self):

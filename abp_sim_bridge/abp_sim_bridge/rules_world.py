@@ -19,6 +19,11 @@ Each `step()` advances the simulation clock by one period 1/rate:
 
 The base does not collide with the cube, and the arms and hands touch the cube only
 through the contact rules (no collision otherwise).
+
+Several cubes (num_cubes > 1): the contact rules act on one cube at a time, the *active*
+one in `world.cube`; between contact episodes (no grasp, both hands well away from it)
+the active cube becomes the one nearest the hands, so a manual action acts on the cube
+the hands reach. The cubes do not touch each other (they stand `cube_spacing` apart).
 """
 
 from dataclasses import dataclass, field, replace
@@ -33,6 +38,10 @@ from .joint_trajectory_follower import TrajectoryFollower
 from .rules_contact import ContactParams, ContactTracker
 from .rules_physics import Physics, World, discrete_state
 from .world_interface import CommandInputs, ContactEvent
+
+# Hands farther than this from the active cube's centre are out of contact with it (its
+# contact reach is under 0.15 m for a 10 cm cube): another cube may become the active one.
+ACTIVE_CUBE_RELEASE_M = 0.2
 
 
 @dataclass
@@ -62,8 +71,12 @@ class SimSettings:
 class RulesWorld(CommandInputs):
     """Robot (joints + base) and ARcube world, advanced by `step()`."""
 
-    def __init__(self, world: World, settings=None, kinematics=None, start_time_ns=0):
+    def __init__(self, world: World, settings=None, kinematics=None, start_time_ns=0,
+                 other_cubes=()):
         self.settings = settings or SimSettings()
+        # Every cube of the scene; world.cube is cubes[self.active], the one in contact.
+        self.cubes = [world.cube, *other_cubes]
+        self.active = 0
         self.kin = kinematics if kinematics is not None else RobotKinematics()
         self.world = world
         self.period_ns = self.settings.period_ns
@@ -167,6 +180,8 @@ class RulesWorld(CommandInputs):
         self.time_ns = t_next_ns
         # Contacts.
         self.hands = self._hand_positions()
+        if len(self.cubes) > 1:
+            self._choose_active_cube()
         events = self.contacts.update(world, self.hands, world.robot_pose)
         for event in events:
             self.events.append((self.time_ns, event))
@@ -174,6 +189,20 @@ class RulesWorld(CommandInputs):
                 self.manual_actions += 1
             self.last_outcome = str(event)
         return events
+
+    def _choose_active_cube(self):
+        """Between contact episodes, hand the contact rules the cube nearest the hands."""
+        if self.contacts.grasp is not None:
+            return
+        self.cubes[self.active] = self.world.cube
+        hands = np.array(list(self.hands.values()))
+        distance = [float(np.min(np.linalg.norm(hands - c.position, axis=1)))
+                    for c in self.cubes]
+        nearest = int(np.argmin(distance))
+        if nearest != self.active and distance[self.active] > ACTIVE_CUBE_RELEASE_M:
+            self.active = nearest
+            self.world.cube = self.cubes[nearest]
+            self.contacts.reset()
 
     def _odometry_error(self):
         sigma_m, sigma_rad = self.settings.orbit_odometry_noise
@@ -191,12 +220,19 @@ class RulesWorld(CommandInputs):
             f'dyaw {np.degrees(err[2]):+.1f} deg')))
 
     # -- state for the publishers -----------------------------------------------------
-    def display_cube(self):
-        return self.contacts.display_cube(self.world)
+    def display_cube(self, index=0):
+        """Cube `index` of the scene as drawn (carried by the hands during a grasp)."""
+        if index == self.active:
+            return self.contacts.display_cube(self.world)
+        return self.cubes[index]
 
-    def discrete_state(self):
-        """(up, yaw) of the resting cube relative to the true base (MODEL.md)."""
-        return discrete_state(self.world.cube, self.world.robot_pose)
+    def display_cubes(self):
+        return [self.display_cube(i) for i in range(len(self.cubes))]
+
+    def discrete_state(self, index=0):
+        """(up, yaw) of resting cube `index` relative to the true base (MODEL.md)."""
+        cube = self.world.cube if index == self.active else self.cubes[index]
+        return discrete_state(cube, self.world.robot_pose)
 
     def odometry_twist(self):
         return self.twist
@@ -211,11 +247,11 @@ def make_rules_world(config, kin, start_time_ns=0):
     given, the head aimed at the cube."""
     settings = config.settings
     if not settings.initial_positions and config.look_at_cube:
-        q0, _ = look_at_world(kin, kin.neutral(), np.zeros(3), config.cube.position)
+        q0, _ = look_at_world(kin, kin.neutral(), np.zeros(3), config.look_at_point)
         settings = replace(settings, initial_positions=tuple(q0))
     world = World(config.cube, np.zeros(3), config.failures, Physics(),
                   seed=config.failure_seed)
-    return RulesWorld(world, settings, kin, start_time_ns)
+    return RulesWorld(world, settings, kin, start_time_ns, other_cubes=config.cubes[1:])
 
 
 __all__ = ['RulesWorld', 'SimSettings', 'make_rules_world']

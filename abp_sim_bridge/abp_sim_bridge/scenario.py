@@ -1,5 +1,10 @@
-"""The simulated scene's set-up: which hidden cube, where, and the distractor tags
+"""The simulated scene's set-up: which hidden cubes, where, and the distractor tags
 (plain Python, no rclpy).
+
+A scene holds one cube (as always) or K > 1 (`scene_models`, `place_cubes`): K models of
+the set without repeats (optionally with a pair of eccentric mass twins, the same faces
+and different mass), at seeded positions at least `spacing` apart in a sector in front of
+the robot's start pose (the camera sees it when the head aims at the cubes' centroid).
 
 The hidden cube is either given explicitly (six face tags + a mass index) or is one model
 of an abp_belief model set (the same sets the belief node builds: robot / random / full /
@@ -101,6 +106,106 @@ def initial_cube(hidden, x=0.40, y=0.0, yaw=0.0, up_face=4, edge=0.10, mass_offs
                                 mass_offset=mass_offset)
 
 
+def eccentric_twins(models):
+    """Pairs (i, j), i < j, of models of the set with the same faces and different mass."""
+    faces = np.asarray(models.faces)
+    pairs = []
+    for i in range(len(faces)):
+        same = np.flatnonzero(np.all(faces[i + 1:] == faces[i], axis=1)) + i + 1
+        pairs += [(i, int(j)) for j in same if int(models.mass[j]) != int(models.mass[i])]
+    return pairs
+
+
+def scene_models(first, count, models, seed=0, twins=False):
+    """Model indices of a K-cube scene: `first` (the hidden cube's index, -1 = draw it
+    too), then models of the set drawn with `seed`, without repeats. `twins`: the first
+    two are eccentric mass twins (`first` must have a twin then)."""
+    count = int(count)
+    if count > models.num_models:
+        raise ValueError(f'num_cubes ({count}) exceeds the {models.num_models} models of the '
+                         'set (models are drawn without repeats)')
+    rng = np.random.default_rng([int(seed), 37])
+    chosen = [] if first < 0 else [int(first)]
+    if twins:
+        if count < 2:
+            raise ValueError('twin_cubes needs num_cubes >= 2')
+        pairs = eccentric_twins(models)
+        if first >= 0:
+            pairs = [p for p in pairs if first in p]
+        if not pairs:
+            raise ValueError('twin_cubes: the model set has no eccentric mass twins'
+                             + (f' of model {first}' if first >= 0 else ''))
+        pair = pairs[int(rng.integers(len(pairs)))]
+        chosen = [first, pair[1] if pair[0] == first else pair[0]] if first >= 0 \
+            else list(pair)
+    elif not chosen:
+        chosen = [int(rng.integers(models.num_models))]
+    rest = [i for i in range(models.num_models) if i not in chosen]
+    chosen += [int(i) for i in rng.choice(rest, size=count - len(chosen), replace=False)]
+    return chosen[:count]
+
+
+def hidden_model(models, index):
+    """The HiddenModel of model `index` of the set `models`."""
+    return HiddenModel(models.names[index], int(index),
+                       tuple(int(t) for t in models.faces[index]), int(models.mass[index]),
+                       int(models.n_tags), int(models.num_models))
+
+
+# Placement attempts before a scene is declared impossible (seconds at worst, never a hang).
+PLACEMENT_ATTEMPTS = 20000
+
+
+def place_cubes(count, seed, spacing=0.3, radius=(0.45, 0.85), half_angle_deg=20.0):
+    """(count, 2) cube centres (x, y) in odom, seeded: in the sector of radii `radius` (m
+    from the robot's start at the origin) and bearings within +-`half_angle_deg` of its
+    heading (+x), every two at least `spacing` apart. ValueError when the sector cannot
+    hold them (an area bound first, then a bounded number of random attempts)."""
+    count, spacing = int(count), float(spacing)
+    r_min, r_max = (float(r) for r in radius)
+    half = np.radians(float(half_angle_deg))
+    if not 0 < r_min < r_max or not 0 < half <= np.pi:
+        raise ValueError(f'scene_radius must be [r_min, r_max] with 0 < r_min < r_max, and '
+                         f'scene_half_angle_deg in (0, 180], got {list(radius)}, '
+                         f'{half_angle_deg}')
+    area = half * (r_max ** 2 - r_min ** 2)
+    # Disks of radius spacing/2 around the centres cannot overlap; the sector grown by
+    # spacing/2 must hold their area (a loose bound: it only catches hopeless scenes fast).
+    grown = (half + spacing / (2 * r_min)) * ((r_max + spacing / 2) ** 2
+                                              - max(r_min - spacing / 2, 0) ** 2)
+    if count * np.pi * (spacing / 2) ** 2 > grown:
+        raise ValueError(_impossible(count, spacing, radius, half_angle_deg, area))
+    rng = np.random.default_rng([int(seed), 38])
+    placed = []
+    for _ in range(PLACEMENT_ATTEMPTS):
+        if len(placed) == count:
+            break
+        # Uniform in the sector's area.
+        r = np.sqrt(rng.uniform(r_min ** 2, r_max ** 2))
+        a = rng.uniform(-half, half)
+        xy = np.array([r * np.cos(a), r * np.sin(a)])
+        if all(np.linalg.norm(xy - q) >= spacing for q in placed):
+            placed.append(xy)
+        elif rng.random() < 0.01:
+            placed = []   # a crowded start: begin again rather than fill gaps forever
+    if len(placed) < count:
+        raise ValueError(_impossible(count, spacing, radius, half_angle_deg, area))
+    return np.array(placed)
+
+
+def _impossible(count, spacing, radius, half_angle_deg, area):
+    return (f'num_cubes: cannot place {count} cubes at least {spacing} m apart (cube_spacing) '
+            f'in the sector of radius {radius[0]}..{radius[1]} m and +-{half_angle_deg} deg '
+            f'(scene_radius, scene_half_angle_deg; {area:.2f} m^2): fewer cubes, a smaller '
+            'spacing or a larger sector')
+
+
+def facing_yaw(xy):
+    """Yaw of a cube at `xy` that shows the robot at the origin what a cube at (x, 0)
+    with yaw 0 shows (its relative yaw 0)."""
+    return float(np.arctan2(xy[1], xy[0]))
+
+
 def make_distractors(count, seed, cube_xy, tag_size=0.08, first_id=7, avoid=(),
                      robot_xy=(0.0, 0.0)):
     """`count` flat tags lying on the floor around the cube (0.25..1.2 m from it, at least
@@ -144,6 +249,7 @@ def drawn_tags(face_tags, p_missed_tag, rng):
     return tuple(int(t) for t in np.where(missed, -1, tags))
 
 
-__all__ = ['HiddenModel', 'MODEL_SETS', 'canonical_name', 'check_face_tags',
-           'choose_hidden_model', 'drawn_tags', 'initial_cube', 'load_model_set',
-           'make_distractors']
+__all__ = ['HiddenModel', 'MODEL_SETS', 'PLACEMENT_ATTEMPTS', 'canonical_name',
+           'check_face_tags', 'choose_hidden_model', 'drawn_tags', 'eccentric_twins',
+           'facing_yaw', 'hidden_model', 'initial_cube', 'load_model_set', 'make_distractors',
+           'place_cubes', 'scene_models']

@@ -15,8 +15,8 @@ Publishes:   /clock (rosgraph_msgs/Clock; when publish_clock)
              /camera/image_raw (sensor_msgs/Image; JPEG on .../compressed with
              publish_compressed), /camera/camera_info (reliable: a subscriber chooses
              sensor data QoS or reliable; abp_common.qos)
-             /abp/sim/ground_truth (abp_msgs/SimGroundTruth, transient local;
-             TESTS AND BENCHMARKS ONLY)
+             /abp/sim/ground_truth (abp_msgs/SimGroundTruth: the first cube), /abp/sim/
+             scene_truth (SimSceneTruth: every cube), transient local; TESTS, BENCHMARKS
 Services:    ~/reset_world (std_srvs/Trigger): rebuild the world (cube, base at the origin,
              initial joints) from the current parameters; simulation time goes on.
 
@@ -79,7 +79,7 @@ from abp_common.parameters import declare_all, read_all
 from abp_description import camera_intrinsics
 from abp_description.kinematics import RobotKinematics
 from abp_description.robot_profile import PROFILE_SPEC, load_profile, with_profile_defaults
-from abp_msgs.msg import SimGroundTruth
+from abp_msgs.msg import SimGroundTruth, SimSceneTruth
 
 from . import config as cfg
 from . import sim_messages
@@ -164,10 +164,8 @@ class SimBridgeNode(ManagedNode):
         self._odom.header.frame_id = ODOM_FRAME
         self._odom.child_frame_id = profile.frames.base
         self._clock_msg = Clock()
-        h = self.config.hidden
         self.get_logger().info(
-            f'sim_bridge: {self.config.world} world, hidden cube {h.object_id} '
-            f'(model_index {h.model_index}), '
+            f'sim_bridge: {self.config.world} world, {cfg.scene_summary(self.config)}, '
             f'{self.config.settings.rate:g} Hz, camera {self.config.camera.rate:g} Hz, '
             f'speedup {self.config.speedup:g}, publish_clock {self.config.publish_clock}')
         if not self.config.publish_clock:
@@ -187,6 +185,7 @@ class SimBridgeNode(ManagedNode):
         self._info_pub = self.create_publisher(CameraInfo, names.CAMERA_INFO,
                                                qos.CAMERA_PUBLISHER)
         self._gt_pub = self.create_publisher(SimGroundTruth, names.GROUND_TRUTH, qos.LATCHED)
+        self._scene_pub = self.create_publisher(SimSceneTruth, names.SCENE_TRUTH, qos.LATCHED)
         values = self.config.values
         self.health.subscribe(base_command.message_type(values['base_command_type']),
                               values['base_command_topic'], self._on_cmd_vel, qos.RELIABLE)
@@ -223,7 +222,7 @@ class SimBridgeNode(ManagedNode):
         """(Re)build the world from `config`. Call with the lock held (or before threads)."""
         self.sim, self.camera = make_world(config, self.kin, self.intrinsics, start_time_ns)
         cam = config.camera
-        self.hidden = config.hidden
+        self.hidden, self.hiddens = config.hidden, config.hiddens
         self._tag_miss_rng = np.random.default_rng(config.failure_seed + 1)
         self.config = config
         tick_ns = self.sim.period_ns
@@ -248,10 +247,9 @@ class SimBridgeNode(ManagedNode):
             response.message = f'reset refused: {err}'
             return response
         self._pacer.set_speedup(config.speedup)
-        h = config.hidden
         response.success = True
-        response.message = (f'world reset at t={self.sim.time:.3f} s: hidden cube '
-                            f'{h.object_id} (model_index {h.model_index})')
+        response.message = (f'world reset at t={self.sim.time:.3f} s: '
+                            f'{cfg.scene_summary(config)}')
         self.get_logger().info(response.message)
         return response
 
@@ -367,8 +365,8 @@ class SimBridgeNode(ManagedNode):
             t_ns = sim.time_ns
             stamp = sim_messages.stamp(t_ns + self._epoch_ns)
             if self._take_frame(t_ns, wall_now):
-                tags = drawn_tags(self.hidden.face_tags, self.config.camera.p_missed_tag,
-                                  self._tag_miss_rng)
+                tags = tuple(drawn_tags(h.face_tags, self.config.camera.p_missed_tag,
+                                        self._tag_miss_rng) for h in self.hiddens)
                 frame = _Frame(stamp, self.camera, self.camera.capture(sim, tags))
             if self._state_schedule.due(t_ns, forced=frame is not None):
                 joints = self._joint_msg
@@ -383,7 +381,8 @@ class SimBridgeNode(ManagedNode):
             new_events = sim.events[self._event_index:]
             self._event_index = len(sim.events)
             if self._gt_schedule.due(t_ns, events=bool(new_events)):
-                gt = sim_messages.ground_truth(self.sim, self.hidden, stamp, ODOM_FRAME)
+                scene = sim_messages.scene_truth(self.sim, self.hiddens, stamp, ODOM_FRAME)
+                gt = scene.cubes[0]
         self.health.latency(time.perf_counter() - started)
         self._controller_actions.report(goal_ends)
         if send_clock:
@@ -393,6 +392,7 @@ class SimBridgeNode(ManagedNode):
             self._odom_pub.publish(odom)
         if gt is not None:
             self._gt_pub.publish(gt)
+            self._scene_pub.publish(scene)
         for t_event, event in new_events:
             self.get_logger().info(f'[t={t_event * 1e-9:.2f} s] {event}')
         if frame is not None:

@@ -8,10 +8,11 @@ import pinocchio as pin
 from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Point, Pose, Quaternion
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from std_msgs.msg import Header
 
 from abp_common import names
 from abp_description.frames import quaternion_from_yaw, rot_z
-from abp_msgs.msg import SimGroundTruth
+from abp_msgs.msg import SimGroundTruth, SimSceneTruth
 
 
 def stamp(ns):
@@ -38,10 +39,11 @@ def fill_odometry(msg, stamp, sim):
     return msg
 
 
-def ground_truth(sim, hidden, stamp, frame_id):
-    """What tests and benchmarks check against: the hidden cube, its pose and state."""
-    cube = sim.display_cube()
-    up, yaw = sim.discrete_state()
+def ground_truth(sim, hidden, stamp, frame_id, index=0):
+    """What tests and benchmarks check against: hidden cube `index` of the scene (the
+    first by default), its pose and state."""
+    cube = sim.display_cube(index)
+    up, yaw = sim.discrete_state(index)
     base = sim.world.robot_pose
     msg = SimGroundTruth()
     msg.header.stamp = stamp
@@ -56,6 +58,13 @@ def ground_truth(sim, hidden, stamp, frame_id):
     msg.manual_actions = sim.manual_actions
     msg.last_outcome = sim.last_outcome
     return msg
+
+
+def scene_truth(sim, hiddens, stamp, frame_id):
+    """Every cube of the scene (SimSceneTruth), in the order the scene placed them."""
+    return SimSceneTruth(header=Header(stamp=stamp, frame_id=frame_id),
+                         cubes=[ground_truth(sim, h, stamp, frame_id, i)
+                                for i, h in enumerate(hiddens)])
 
 
 def camera_info(intrinsics):

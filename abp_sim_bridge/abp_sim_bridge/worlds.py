@@ -10,9 +10,9 @@ configuration's `world` parameter:
   renderer through EGL).
 
 A camera takes a `capture(world, tags)` of the state in the simulation thread (tags: the
-face tags of this frame, -1 = a missed tag, scenario.drawn_tags) and `render(snapshot)`s
-it later in the render thread; `close()` frees it (in the render thread: the MuJoCo
-renderer's GL context lives in the thread that rendered first).
+face tags of each cube in this frame, -1 = a missed tag, scenario.drawn_tags) and
+`render(snapshot)`s it later in the render thread; `close()` frees it (in the render
+thread: the MuJoCo renderer's GL context lives in the thread that rendered first).
 
 MuJoCo faults are drawn per manual action: afresh for every arm motion that starts out of
 contact (the trajectories of one skill phase, stamped together), never during a contact:
@@ -31,6 +31,11 @@ from .flat_renderer import ArcubeRenderer, tag_dictionary
 from .rules_world import make_rules_world
 
 
+def per_cube(tags):
+    """Face tags per cube: a flat tuple of six ids (a one-cube scene) as one cube's."""
+    return (tuple(tags),) if len(tags) and np.isscalar(tags[0]) else tuple(tags)
+
+
 def initial_positions(config, kin):
     """The 13 joint positions the world starts with: initial_positions, or the head aimed
     at the cube (look_at_cube), or all zero."""
@@ -38,7 +43,7 @@ def initial_positions(config, kin):
     if q0:
         return tuple(q0)
     if config.look_at_cube:
-        q, _ = look_at_world(kin, kin.neutral(), np.zeros(3), config.cube.position)
+        q, _ = look_at_world(kin, kin.neutral(), np.zeros(3), config.look_at_point)
         return tuple(q)
     return tuple(kin.neutral())
 
@@ -57,11 +62,15 @@ class FlatCamera:
         self.distractors = config.distractors
 
     def capture(self, world, tags):
-        return world.camera_pose(), world.display_cube().pose(), tags
+        """`tags`: the drawn face tags of each cube (one tuple per cube of the scene)."""
+        cubes = [c.pose() for c in world.display_cubes()]
+        return world.camera_pose(), cubes, per_cube(tags)
 
     def render(self, snapshot):
-        camera_pose, cube_pose, tags = snapshot
-        return self.renderer.render(camera_pose, cube_pose, tags, distractors=self.distractors)
+        camera_pose, cube_poses, tags = snapshot
+        return self.renderer.render(camera_pose, cube_poses[0], tags[0],
+                                    distractors=self.distractors,
+                                    more_cubes=list(zip(cube_poses[1:], tags[1:])))
 
     def close(self):
         pass
@@ -75,7 +84,9 @@ class MujocoCamera:
         self.encoding = encoding
 
     def capture(self, world, tags):
-        blank = tuple(face for face, tag in enumerate(tags) if tag < 0)
+        """`tags`: the drawn face tags of each cube (one tuple per cube of the scene)."""
+        blank = tuple((cube, face) for cube, faces in enumerate(per_cube(tags))
+                      for face, tag in enumerate(faces) if tag < 0)
         return world.snapshot(), blank
 
     def render(self, snapshot):
@@ -171,6 +182,8 @@ def make_mujoco_world(config, kin, start_time_ns=0):
     world_class = mujoco_world_class()
     return world_class(config.cube, config.hidden.face_tags, settings, kin, start_time_ns,
                        distractors=config.distractors,
+                       more_cubes=[(c, h.face_tags) for c, h in zip(config.cubes[1:],
+                                                                     config.hiddens[1:])],
                        faults=_Faults(config.failures, m), fault_seed=config.failure_seed)
 
 
@@ -182,5 +195,5 @@ def make_world(config, kin, intrinsics, start_time_ns=0):
     return make_rules_world(config, kin, start_time_ns), FlatCamera(config, intrinsics)
 
 
-__all__ = ['FlatCamera', 'MujocoCamera', 'check_rendering', 'initial_positions',
+__all__ = ['FlatCamera', 'MujocoCamera', 'check_rendering', 'initial_positions', 'per_cube',
            'make_mujoco_world', 'make_world']

@@ -88,6 +88,14 @@ class ObservationTally:
 REPORT_CHARS, REPORT_ITEMS = 120, 10
 
 
+def of_the_belief_node(publishers):
+    """The endpoint gids among `publishers` ({gid: (namespace, node name)}) that are the
+    belief node's: those of a node named as the belief node; if there is none, all of them
+    (a renamed node, or one the graph lists without its name yet)."""
+    named = {gid for gid, node in publishers.items() if node[1] == BELIEF_NODE}
+    return named or set(publishers)
+
+
 def belief_node_report(values, age_s, observation_topic='abp/aspect_observation'):
     """One clause on what the belief node says of itself in its latest /diagnostics status
     (`values`: {key: text}, `age_s` since it arrived; None: no status): whether it receives
@@ -400,5 +408,6 @@ class EpisodeRunner:
 
 
 __all__ = ['ABORTED', 'BELIEF_NODE', 'CANCELED', 'SUCCEEDED', 'EpisodePorts', 'EpisodeResult',
+           'of_the_belief_node',
            'EpisodeRunner', 'PosteriorStop', 'RecognitionAborted', 'StopCheck', 'belief_array',
            'belief_node_report', 'expected_gain', 'top_posterior']

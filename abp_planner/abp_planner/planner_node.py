@@ -16,8 +16,8 @@ Uses:           abp/skills/{orbit,push,lift,flip} actions, abp/skills/check_feas
 identify: docs/MULTI_OBJECT.md) `abp_planner.scene_episode.SceneEpisodeRunner` over
 (object, action); this module moves messages and implements the
 runner's `EpisodePorts` for the goal being executed; `skill_clients` sends the skill
-goals. A belief that is not over this
-model set or is malformed (`input_checks.belief`), and malformed observations, are rejected,
+goals, `goal_results` builds the result. A belief that is not over this model set or is
+malformed (`input_checks.belief`), and malformed observations, are rejected,
 counted in /diagnostics and logged at most once per few seconds per kind
 (abp_common.health); the planner keeps the last good belief.
 """
@@ -49,7 +49,6 @@ from abp_msgs.msg import (
     AspectObservation,
     Belief,
     ExecutedAction,
-    ObjectResult,
     PlanStep,
     SceneBelief,
 )
@@ -57,28 +56,26 @@ from abp_msgs.srv import CheckFeasibility, ResetBelief
 
 from .belief_inbox import BeliefInbox
 from .episode import (
-    ABORTED,
     BELIEF_NODE,
-    CANCELED,
     EpisodeRunner,
     ObservationTally,
     RecognitionAborted,
     RuleStop,
     belief_node_report,
     expected_gain,
+    of_the_belief_node,
 )
+from .goal_results import goal_end, scene_result, single_result
 from .markers import belief_markers
 from .object_planner import ObjectActionPlanner
 from .planner import PLANNER_NAMES, make_planner
 from .planner_config import PLANNER_SPECS
 from .scene_episode import SceneEpisodeRunner, task_of
-from .scene_inbox import SceneInbox
+from .scene_inbox import SceneInbox, ScenePorts
 from .skill_clients import SkillClients, call_with_retry
 from .stopping import STOP_RULES, StoppingRule
 from .tasks import TaskMonitor
 
-# Candidates a Recognize result lists.
-TOP_CANDIDATES = 5
 # The Recognize goal's task values ('' is the one-object episode of before tasks).
 TASKS = ('', Recognize.Goal.TASK_IDENTIFY_ALL, Recognize.Goal.TASK_FIND,
          Recognize.Goal.TASK_IDENTIFY)
@@ -273,7 +270,9 @@ class PlannerNode(ManagedNode):
             return Recognize.Result(success=False, reason=str(error),
                                     elapsed=(self.get_clock().now() - started).to_msg())
         monitor = TaskMonitor(task, self._stopping_rule(goal, params))
-        runner = SceneEpisodeRunner(object_planner, _ScenePorts(self), self.model_set, monitor,
+        ports = ScenePorts(self, self._scenes, self._beliefs,
+                           lambda: rclpy.ok(context=self.context))
+        runner = SceneEpisodeRunner(object_planner, ports, self.model_set, monitor,
                                     params['observation_timeout'], self.get_logger(),
                                     gather_s=params['scene_gather_s'],
                                     node_return_timeout_s=params['node_return_timeout'],
@@ -281,42 +280,17 @@ class PlannerNode(ManagedNode):
         return self._finish_task(goal_handle, runner.run(), started)
 
     def _finish_task(self, goal_handle, episode, started):
-        result = Recognize.Result(actions_taken=episode.actions_taken, success=episode.success,
-                                  reason=episode.reason, found_track_id=episode.found_object)
-        names_ = self.model_set.names
-        result.objects = [ObjectResult(track_id=str(o.object_id), object_id=names_[o.model],
-                                       posterior=float(o.posterior), actions_taken=o.actions,
-                                       decided=bool(o.identified), reason=o.reason)
-                          for o in episode.objects]
-        # The one-object fields name the object the task was about (identify's track,
-        # find's found track, or the only object of the scene).
-        view = episode.view
-        focus = episode.found_object or self._runner_track(episode)
-        if view is not None and focus in view:
-            belief = view.message(focus)
-            result.object_id = belief.object_ids[0] if belief.object_ids else ''
-            result.posterior = float(belief.probabilities[0]) if belief.probabilities else 0.0
-            result.top_object_ids = list(belief.object_ids[:TOP_CANDIDATES])
-            result.top_posteriors = [float(p) for p in belief.probabilities[:TOP_CANDIDATES]]
-        result.elapsed = (self.get_clock().now() - started).to_msg()
-        if episode.outcome == CANCELED:
-            goal_handle.canceled()
-        elif episode.outcome == ABORTED or not episode.success:
-            goal_handle.abort()
-        else:
-            goal_handle.succeed()
+        result = scene_result(episode, self.model_set.names, goal_handle.request)
         named = ', '.join(f'{o.track_id}: {o.object_id} ({o.posterior:.3f})'
                           for o in result.objects) or '-'
-        self.get_logger().info(f'task {self._goal_handle.request.task} finished after '
+        self.get_logger().info(f'task {goal_handle.request.task} finished after '
                                f'{episode.actions_taken} actions ({named}): {episode.reason}')
-        return result
+        return self._end(goal_handle, episode, result, started)
 
-    def _runner_track(self, episode):
-        request = self._goal_handle.request
-        if request.task == Recognize.Goal.TASK_IDENTIFY:
-            return request.track_id
-        view = episode.view
-        return view.object_ids[0] if view is not None and len(view) == 1 else ''
+    def _end(self, goal_handle, episode, result, started):
+        result.elapsed = (self.get_clock().now() - started).to_msg()
+        getattr(goal_handle, goal_end(episode))()
+        return result
 
     def _stopping_rule(self, goal, params):
         """The goal's stopping rule; a field left at its zero value takes the parameter."""
@@ -332,31 +306,16 @@ class PlannerNode(ManagedNode):
                             fault_margin=params['fault_margin'])
 
     def _finish(self, goal_handle, episode, started):
-        result = Recognize.Result(actions_taken=episode.actions_taken, success=episode.success,
-                                  reason=episode.reason)
-        belief = episode.belief or Belief()
-        if belief.object_ids:
-            result.object_id = belief.object_ids[0]
-            result.posterior = float(belief.probabilities[0])
-            result.top_object_ids = list(belief.object_ids[:TOP_CANDIDATES])
-            result.top_posteriors = [float(p) for p in belief.probabilities[:TOP_CANDIDATES]]
-        result.elapsed = (self.get_clock().now() - started).to_msg()
-        if episode.outcome == CANCELED:
-            goal_handle.canceled()
-        elif episode.outcome == ABORTED or not episode.success:
-            # Not identified (budget spent, a node lost): never reported as a success.
-            goal_handle.abort()
-        else:
-            goal_handle.succeed()
+        result = single_result(episode)
         self.get_logger().info(
             f'recognition finished: {result.object_id or "-"} ({result.posterior:.3f}) after '
             f'{episode.actions_taken} actions: {episode.reason}')
-        return result
+        return self._end(goal_handle, episode, result, started)
 
     # -- EpisodePorts (abp_planner.episode) ------------------------------------------
     def reset_belief(self, track_id=''):
         """Reset every track's belief (`track_id` '', a new scene) or one track's."""
-        self._known_belief_publishers = _of_the_belief_node(self._belief_publishers())
+        self._known_belief_publishers = of_the_belief_node(self._belief_publishers())
         if not self._skills_at_start:
             self._skills_at_start = self._skills.ready()
         if not self._reset.wait_for_service(timeout_sec=10.0):
@@ -413,7 +372,7 @@ class PlannerNode(ManagedNode):
         # endpoint (nameless at first) well after its messages flow, so a first sighting
         # is no respawn.
         missing = []
-        own = _of_the_belief_node(self._belief_publishers())
+        own = of_the_belief_node(self._belief_publishers())
         new = own - self._known_belief_publishers if self._known_belief_publishers else set()
         self._known_belief_publishers |= own
         if not own or new:
@@ -476,37 +435,6 @@ class PlannerNode(ManagedNode):
         self._markers_pub.publish(belief_markers(belief, self._cube_pose,
                                                  self.get_clock().now().to_msg(),
                                                  base_frame=self._base_frame))
-
-
-class _ScenePorts:
-    """The node's EpisodePorts with the scene belief (/abp/beliefs) where the one-object
-    episode reads /abp/belief (scene_episode's ports)."""
-
-    def __init__(self, node):
-        self._node = node
-
-    def __getattr__(self, name):
-        return getattr(self._node, name)
-
-    def wait_for_belief(self, predicate, timeout_s):
-        node = self._node
-        return node._scenes.wait(predicate, timeout_s, lambda: rclpy.ok(context=node.context))
-
-    def latest_belief(self):
-        return self._node._scenes.latest()
-
-    def belief_restarted(self):
-        # /abp/belief's step goes back whenever another object is updated: not a restart.
-        self._node._beliefs.take_restart()
-        return self._node._scenes.take_restart()
-
-
-def _of_the_belief_node(publishers):
-    """The endpoint gids among `publishers` ({gid: (namespace, node name)}) that are the
-    belief node's: those of a node named as the belief node; if there is none, all of them
-    (a renamed node, or one the graph lists without its name yet)."""
-    named = {gid for gid, node in publishers.items() if node[1] == BELIEF_NODE}
-    return named or set(publishers)
 
 
 def main(args=None):

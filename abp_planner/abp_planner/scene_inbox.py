@@ -87,4 +87,30 @@ class SceneInbox:
             return self._latest
 
 
-__all__ = ['SceneInbox', 'track_steps']
+
+
+class ScenePorts:
+    """The planner's EpisodePorts (`ports`) with the scene belief (/abp/beliefs, `scenes`,
+    a SceneInbox) where the one-object episode reads /abp/belief (`beliefs`, its
+    BeliefInbox): scene_episode's ports. `running()`: False once the process stops."""
+
+    def __init__(self, ports, scenes, beliefs, running):
+        self._ports, self._scenes, self._beliefs, self._running = \
+            ports, scenes, beliefs, running
+
+    def __getattr__(self, name):
+        return getattr(self._ports, name)
+
+    def wait_for_belief(self, predicate, timeout_s):
+        return self._scenes.wait(predicate, timeout_s, self._running)
+
+    def latest_belief(self):
+        return self._scenes.latest()
+
+    def belief_restarted(self):
+        # /abp/belief's step goes back whenever another object is updated: not a restart.
+        self._beliefs.take_restart()
+        return self._scenes.take_restart()
+
+
+__all__ = ['SceneInbox', 'ScenePorts', 'track_steps']

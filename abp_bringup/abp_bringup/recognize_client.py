@@ -2,6 +2,7 @@
 
     recognize [--planner MODE] [--max-actions N] [--stopping-rule RULE] [--target-error E]
               [--threshold P] [--result-json FILE] [--timeout S] [--wait S]
+              [--task identify_all|find|identify [--target-model ID] [--track-id T]]
               [--ros-args -r __ns:=/robot1]
 
 Trace lines show each chosen action with its expected information gain, the top
@@ -12,7 +13,9 @@ user-facing client, never by a recognition node).
 Exit code 0 when the recognition succeeded (and matched the ground truth when
 there is one), 1 otherwise, 2 for bad arguments, 130 on Ctrl-C (the goal is
 cancelled first). Names are relative (abp_common.names): under a namespace the client
-finds that graph's Recognize server.
+finds that graph's Recognize server. With `--task` (several cubes: docs/MULTI_OBJECT.md)
+the result lists every object track (`objects` in the JSON) and, for `find`, the track
+found; the ground truth is compared with the one-object fields only.
 """
 
 import argparse
@@ -34,6 +37,8 @@ from abp_msgs.action import Recognize
 from abp_msgs.msg import Belief, ExecutedAction, PlanStep, SimGroundTruth
 
 TRACE_DEPTH = 50
+TASKS = (Recognize.Goal.TASK_IDENTIFY_ALL, Recognize.Goal.TASK_FIND,
+         Recognize.Goal.TASK_IDENTIFY)
 STATUS_NAMES = {GoalStatus.STATUS_SUCCEEDED: 'succeeded', GoalStatus.STATUS_ABORTED: 'aborted',
                 GoalStatus.STATUS_CANCELED: 'cancelled'}
 
@@ -55,7 +60,15 @@ def parse_args(argv):
                         help='wall-clock seconds before the goal is cancelled')
     parser.add_argument('--wait', type=float, default=120.0,
                         help='seconds to wait for the graph (the Recognize server)')
+    parser.add_argument('--task', default='', choices=('', *TASKS),
+                        help='a task over several cubes (default: the one cube in front)')
+    parser.add_argument('--target-model', default='', help='the model id --task find seeks')
+    parser.add_argument('--track-id', default='', help='the track --task identify names')
     args = parser.parse_args(argv)
+    if (args.task == Recognize.Goal.TASK_FIND) != bool(args.target_model) or \
+            (args.task == Recognize.Goal.TASK_IDENTIFY) != bool(args.track_id):
+        parser.error('--target-model goes with --task find, --track-id with --task identify '
+                     '(each needs it)')
     if args.max_actions < 0 or not 0.0 <= args.threshold < 1.0 or \
             not 0.0 <= args.target_error < 0.5:
         parser.error('--max-actions must be >= 0, --threshold in [0, 1) and --target-error '
@@ -162,7 +175,8 @@ def main(argv=None):
         goal = Recognize.Goal(planner_mode=args.planner, max_actions=args.max_actions,
                               posterior_threshold=args.threshold,
                               stopping_rule=args.stopping_rule,
-                              target_error=args.target_error)
+                              target_error=args.target_error, task=args.task,
+                              target_model=args.target_model, track_id=args.track_id)
         tracer.printing = True
         sent = client.send_goal_async(goal, feedback_callback=tracer.on_feedback)
         spin_until(node, sent.done, 30.0)
@@ -213,8 +227,16 @@ def report(response, tracer, result_json):
         'elapsed_s': elapsed,
         'entropy': float(tracer.belief.entropy) if tracer.belief else None,
     }
+    if result.objects or result.found_track_id:
+        summary['objects'] = [
+            {'track_id': o.track_id, 'object_id': o.object_id, 'posterior': float(o.posterior),
+             'actions': int(o.actions_taken), 'decided': bool(o.decided), 'reason': o.reason}
+            for o in result.objects]
+        summary['found_track_id'] = result.found_track_id
     identified = response.status == GoalStatus.STATUS_SUCCEEDED and bool(result.success)
     truth = tracer.ground_truth
+    if 'objects' in summary and not result.object_id:
+        truth = None   # a task over every cube: the first cube's truth says nothing of it
     if truth is not None:
         summary['ground_truth'] = truth.object_id
         # An aborted goal still names its most likely object: that is no identification,
@@ -224,6 +246,10 @@ def report(response, tracer, result_json):
     print(f"result: {summary['status']}: {result.object_id or '-'} posterior "
           f"{result.posterior:.3f} after {result.actions_taken} actions, {elapsed:.1f} s "
           f"({result.reason})", flush=True)
+    for entry in summary.get('objects', []):
+        print(f"  track {entry['track_id']}: {entry['object_id'] or '-'} "
+              f"{entry['posterior']:.3f}, {entry['actions']} actions, "
+              f"{'named' if entry['decided'] else 'not named'} ({entry['reason']})", flush=True)
     if response.status != GoalStatus.STATUS_SUCCEEDED and result.top_object_ids:
         print('not identified; candidates: ' + ', '.join(
             f'{oid} {p:.3f}' for oid, p in zip(result.top_object_ids, result.top_posteriors)),

@@ -47,3 +47,38 @@ def test_report_without_ground_truth_has_no_verdict(tmp_path, capsys):
                   str(out)) == 0
     assert 'correct' not in json.loads(out.read_text())
     assert 'ground truth' not in capsys.readouterr().out
+
+
+def test_a_task_result_lists_every_object_track(tmp_path, capsys):
+    from abp_msgs.msg import ObjectResult
+    result = Recognize.Result(success=True, object_id='cube_a', posterior=0.99,
+                              actions_taken=7, reason='found', found_track_id='2',
+                              objects=[ObjectResult(track_id='1', object_id='cube_b',
+                                                    posterior=0.4, actions_taken=3,
+                                                    decided=False, reason='not the target'),
+                                       ObjectResult(track_id='2', object_id='cube_a',
+                                                    posterior=0.99, actions_taken=4,
+                                                    decided=True, reason='found')])
+    out = tmp_path / 'result.json'
+    response = SimpleNamespace(status=GoalStatus.STATUS_SUCCEEDED, result=result)
+    assert report(response, SimpleNamespace(belief=None, ground_truth=None), str(out)) == 0
+    summary = json.loads(out.read_text())
+    assert summary['found_track_id'] == '2'
+    assert [o['track_id'] for o in summary['objects']] == ['1', '2']
+    assert summary['objects'][1] == {'track_id': '2', 'object_id': 'cube_a', 'posterior': 0.99,
+                                     'actions': 4, 'decided': True, 'reason': 'found'}
+    assert 'track 1: cube_b 0.400, 3 actions, not named (not the target)' in \
+        capsys.readouterr().out
+
+
+@pytest.mark.parametrize('argv', [
+    ['--task', 'find'],                              # find needs the model it seeks
+    ['--task', 'identify'],                          # identify needs the track
+    ['--task', 'identify_all', '--track-id', '3'],   # a track without identify
+    ['--task', 'bogus'],
+])
+def test_task_arguments_that_do_not_fit_are_refused(argv):
+    from abp_bringup.recognize_client import parse_args
+    with pytest.raises(SystemExit) as exited:
+        parse_args(argv)
+    assert exited.value.code == 2

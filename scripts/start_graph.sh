@@ -219,7 +219,8 @@ set +u; source "$REPO/scripts/env.sh"; set -u
 
 # SROS2 asked for on a machine whose rmw cannot do it: say so now, not as an rcl error
 # in every node's log or as a graph that runs unprotected (docs/OFFBOARD.md).
-python -m abp_bringup.security_check || exit 2
+# Only when security is asked for (rcl reads exactly "true"): a Python start costs time.
+[ "${ROS_SECURITY_ENABLE:-}" != true ] || python -m abp_bringup.security_check || exit 2
 
 # The robot profile: checked here (a bad one names its file and key), given to every node
 # (/**: the nodes that know the robot declare robot_profile), and its learned model set is
